@@ -1,0 +1,397 @@
+"""Shared GL passes, built only when a method needs them: GBuffer, shadow maps, direct lighting,
+reflective shadow map. `SharedPasses.render(prof)` runs them each frame under the shared stage
+names `gbuffer_shadow`, `direct_light` and `rsm`.
+
+Image convention: textures are GL's (row 0 at the bottom); `read_rgb` returns numpy arrays
+with row 0 at the top, like EXR files and Mitsuba.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from bench.scene import DirectionalLight, PointLight, Scene, SpotLight
+from .camera import View, look_at, orthographic, perspective
+from .context import check_gl, create_context, park
+from .gpu_scene import GpuScene
+from .profiler import StageProfiler
+from .shaders import GLOBAL_DEFINES, load_program, set_uniforms
+
+SHADER_DIR = Path(__file__).parent / "shaders"
+SHARED_STAGES = ("gbuffer_shadow", "direct_light", "rsm")
+KNOWN_NEEDS = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
+
+# Cube faces in the order shadow.glsl selects them: +X, -X, +Y, -Y, +Z, -Z (axis, up).
+_CUBE_FACES = (((1, 0, 0), (0, 1, 0)), ((-1, 0, 0), (0, 1, 0)), ((0, 1, 0), (0, 0, 1)),
+               ((0, -1, 0), (0, 0, 1)), ((0, 0, 1), (0, 1, 0)), ((0, 0, -1), (0, 1, 0)))
+
+
+def read_rgb(tex: moderngl.Texture) -> np.ndarray:
+    """Read an RGBA32F/RGB32F texture as HxWx3 float32, row 0 at the top."""
+    comps = tex.components
+    data = np.frombuffer(tex.read(), dtype=np.float32).reshape(tex.height, tex.width, comps)
+    return np.ascontiguousarray(data[::-1, :, :3])
+
+
+def read_rgba(tex: moderngl.Texture) -> np.ndarray:
+    data = np.frombuffer(tex.read(), dtype=np.float32).reshape(tex.height, tex.width, tex.components)
+    return np.ascontiguousarray(data[::-1])
+
+
+@dataclass(frozen=True)
+class LightLayer:
+    light_index: int
+    view_proj: np.ndarray
+    info: np.ndarray  # see ShadowLayer.info in shadow.glsl
+
+
+def plan_light_layers(gpu: GpuScene, resolution: int) -> tuple[list[LightLayer], list[int], list[int]]:
+    """The shadow/RSM layers of every light: point -> 6 cube faces, spot -> 1, directional -> 1."""
+    layers: list[LightLayer] = []
+    first, count = [], []
+    R = gpu.radius
+    center = np.asarray(gpu.facts.scene_center) - gpu.origin
+    for i, light in enumerate(gpu.scene.lights):
+        first.append(len(layers))
+        if isinstance(light, PointLight):
+            pos = light.position - gpu.origin
+            far = np.linalg.norm(pos - center) + R * 1.01
+            near = max(1e-5 * far, 1e-6)
+            proj = perspective(90.0, 1.0, near, far)
+            for axis, up in _CUBE_FACES:
+                vp = proj @ look_at(pos, pos + np.asarray(axis, float), up)
+                layers.append(LightLayer(i, vp, np.array([2.0 / resolution, 0.0, 1.0, 0.0])))
+        elif isinstance(light, SpotLight):
+            pos = light.position - gpu.origin
+            far = np.linalg.norm(pos - center) + R * 1.01
+            near = max(1e-5 * far, 1e-6)
+            fov = min(2.0 * light.cutoff_angle_deg * 1.02, 170.0)
+            d = light.direction
+            up = (0.0, 1.0, 0.0) if abs(d[1]) < 0.99 else (1.0, 0.0, 0.0)
+            vp = perspective(fov, 1.0, near, far) @ look_at(pos, pos + d, up)
+            tan_half = np.tan(np.radians(fov) / 2)
+            layers.append(LightLayer(i, vp, np.array([2.0 * tan_half / resolution, 0.0, tan_half, 0.0])))
+        elif isinstance(light, DirectionalLight):
+            d = light.direction
+            up = (0.0, 1.0, 0.0) if abs(d[1]) < 0.99 else (1.0, 0.0, 0.0)
+            eye = center - d * 2.0 * R
+            vp = orthographic(R * 1.01, R * 1.01, 0.0, 4.0 * R) @ look_at(eye, center, up)
+            layers.append(LightLayer(i, vp, np.array([2.0 * R * 1.01 / resolution, 1.0, 0.0, 0.0])))
+        count.append(len(layers) - first[-1])
+    return layers, first, count
+
+
+class GBuffer:
+    """Position, shading normal, albedo, geometric normal (+ triangle id in .w) and depth."""
+
+    def __init__(self, gpu: GpuScene, width: int, height: int):
+        ctx = gpu.ctx
+        self.gpu, self.width, self.height = gpu, width, height
+        self.position = ctx.texture((width, height), 4, dtype="f4")
+        self.normal = ctx.texture((width, height), 4, dtype="f4")
+        self.albedo = ctx.texture((width, height), 4, dtype="f4")
+        self.geo_normal = ctx.texture((width, height), 4, dtype="f4")
+        for t in (self.position, self.normal, self.albedo, self.geo_normal):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.depth = ctx.depth_texture((width, height))
+        self.fbo = ctx.framebuffer([self.position, self.normal, self.albedo, self.geo_normal], self.depth)
+        self.program = load_program(ctx, SHADER_DIR / "gbuffer.glsl")
+        self.vao = gpu.vertex_array(self.program)
+
+    def render(self, view: View) -> None:
+        ctx = self.gpu.ctx
+        self.fbo.use()
+        ctx.viewport = (0, 0, self.width, self.height)
+        self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable_only(moderngl.DEPTH_TEST)
+        set_uniforms(self.program, u_view_proj=view.view_proj, u_camera_pos=tuple(view.eye_local))
+        self.gpu.bind_scene_buffers()
+        self.vao.render(moderngl.TRIANGLES)
+
+    def bind(self, program: moderngl.Program, first_unit: int = 0) -> int:
+        """Bind the GBuffer textures to `program`'s u_gbuffer_* samplers; returns next free unit."""
+        unit = first_unit
+        for name, tex in (("u_gbuffer_position", self.position), ("u_gbuffer_normal", self.normal),
+                          ("u_gbuffer_albedo", self.albedo), ("u_gbuffer_geo_normal", self.geo_normal)):
+            if name in program:
+                tex.use(unit)
+                program[name].value = unit
+                unit += 1
+        return unit
+
+    def read(self) -> dict:
+        pos = read_rgba(self.position)
+        geo = read_rgba(self.geo_normal)
+        return {"position": pos[..., :3] + self.gpu.origin.astype(np.float32), "mask": pos[..., 3] > 0,
+                "normal": read_rgb(self.normal), "albedo": read_rgb(self.albedo),
+                "geo_normal": geo[..., :3], "triangle": np.where(pos[..., 3] > 0, geo[..., 3], -1).astype(np.int64)}
+
+    def release(self) -> None:
+        park(self.gpu.ctx)
+        for obj in (self.fbo, self.position, self.normal, self.albedo, self.geo_normal, self.depth, self.program):
+            obj.release()
+
+
+class ShadowMaps:
+    """All lights' shadow layers in one R32F atlas (tiles of resolution^2)."""
+
+    def __init__(self, gpu: GpuScene, resolution: int = 1024):
+        ctx = gpu.ctx
+        self.gpu, self.resolution = gpu, int(resolution)
+        self.layers, first, count = plan_light_layers(gpu, self.resolution)
+        gpu.set_light_shadow_layers(first, count)
+        n = len(self.layers)
+        self.tiles_x = int(np.ceil(np.sqrt(n)))
+        tiles_y = int(np.ceil(n / self.tiles_x))
+        size = (self.tiles_x * self.resolution, tiles_y * self.resolution)
+        self.atlas = ctx.texture(size, 1, dtype="f4")
+        self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.depth = ctx.depth_renderbuffer(size)
+        self.fbo = ctx.framebuffer([self.atlas], self.depth)
+        records = np.zeros((n, 5, 4), dtype=np.float32)
+        for k, layer in enumerate(self.layers):
+            records[k, :4] = layer.view_proj.T  # column-major mat4
+            records[k, 4] = layer.info
+        self.layer_buffer = ctx.buffer(records.tobytes())
+        self.program = load_program(ctx, SHADER_DIR / "shadow_depth.glsl")
+        self.vao = gpu.vertex_array(self.program)
+
+    def render(self) -> None:
+        ctx = self.gpu.ctx
+        self.fbo.use()
+        ctx.scissor = None
+        self.fbo.clear(3.0e38, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable_only(moderngl.DEPTH_TEST)
+        self.gpu.bind_scene_buffers()
+        for k, layer in enumerate(self.layers):
+            x, y = k % self.tiles_x, k // self.tiles_x
+            ctx.viewport = (x * self.resolution, y * self.resolution, self.resolution, self.resolution)
+            set_uniforms(self.program, u_view_proj=layer.view_proj, u_light_index=layer.light_index)
+            self.vao.render(moderngl.TRIANGLES)
+
+    def bind(self, program: moderngl.Program, unit: int) -> int:
+        """Bind atlas + layer records for shadow.glsl; returns the next free texture unit."""
+        self.layer_buffer.bind_to_storage_buffer(GLOBAL_DEFINES["BINDING_SHADOW_LAYERS"])
+        if "u_shadow_atlas" in program:
+            self.atlas.use(unit)
+            program["u_shadow_atlas"].value = unit
+            set_uniforms(program, u_shadow_tiles_x=self.tiles_x, u_shadow_resolution=self.resolution)
+            return unit + 1
+        return unit
+
+    def release(self) -> None:
+        park(self.gpu.ctx)
+        for obj in (self.fbo, self.atlas, self.depth, self.layer_buffer, self.program):
+            obj.release()
+
+
+class DirectPass:
+    """Direct radiance of the GBuffer (RGBA32F), shadowed with the shadow maps when given."""
+
+    def __init__(self, gpu: GpuScene, gbuffer: GBuffer, shadows: ShadowMaps | None):
+        ctx = gpu.ctx
+        self.gpu, self.gbuffer, self.shadows = gpu, gbuffer, shadows
+        self.radiance = ctx.texture((gbuffer.width, gbuffer.height), 4, dtype="f4")
+        self.radiance.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.fbo = ctx.framebuffer([self.radiance])
+        self.program = load_program(ctx, SHADER_DIR / "direct_pass.glsl")
+        self.vao = ctx.vertex_array(self.program, [])
+
+    def render(self) -> None:
+        ctx = self.gpu.ctx
+        self.fbo.use()
+        ctx.viewport = (0, 0, self.gbuffer.width, self.gbuffer.height)
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        unit = self.gbuffer.bind(self.program)
+        if self.shadows is not None:
+            self.shadows.bind(self.program, unit)
+        set_uniforms(self.program, u_light_count=self.gpu.light_count, u_shadows=self.shadows is not None)
+        self.gpu.bind_scene_buffers()
+        self.vao.render(moderngl.TRIANGLES, vertices=3)
+
+    def read(self) -> np.ndarray:
+        return read_rgb(self.radiance)
+
+    def release(self) -> None:
+        park(self.gpu.ctx)
+        for obj in (self.fbo, self.radiance, self.program, self.vao):
+            obj.release()
+
+
+class ReflectiveShadowMap:
+    """RSM of every light (layers as the shadow maps, lower resolution): position, normal
+    facing the light, reflected flux per texel. Unlit texels have flux 0 and position.w 0."""
+
+    def __init__(self, gpu: GpuScene, resolution: int = 128):
+        ctx = gpu.ctx
+        self.gpu, self.resolution = gpu, int(resolution)
+        self.layers, _, _ = plan_light_layers(gpu, self.resolution)
+        n = len(self.layers)
+        self.tiles_x = int(np.ceil(np.sqrt(n)))
+        tiles_y = int(np.ceil(n / self.tiles_x))
+        size = (self.tiles_x * self.resolution, tiles_y * self.resolution)
+        self.position = ctx.texture(size, 4, dtype="f4")
+        self.normal = ctx.texture(size, 4, dtype="f4")
+        self.flux = ctx.texture(size, 4, dtype="f4")
+        for t in (self.position, self.normal, self.flux):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.depth = ctx.depth_renderbuffer(size)
+        self.fbo = ctx.framebuffer([self.position, self.normal, self.flux], self.depth)
+        self.program = load_program(ctx, SHADER_DIR / "rsm.glsl")
+        self.vao = gpu.vertex_array(self.program)
+
+    @property
+    def texel_count(self) -> int:
+        return len(self.layers) * self.resolution * self.resolution
+
+    def render(self) -> None:
+        ctx = self.gpu.ctx
+        self.fbo.use()
+        self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
+        ctx.enable_only(moderngl.DEPTH_TEST)
+        self.gpu.bind_scene_buffers()
+        for k, layer in enumerate(self.layers):
+            x, y = k % self.tiles_x, k // self.tiles_x
+            ctx.viewport = (x * self.resolution, y * self.resolution, self.resolution, self.resolution)
+            set_uniforms(self.program, u_view_proj=layer.view_proj, u_light_index=layer.light_index,
+                         u_layer_info=tuple(float(v) for v in layer.info), u_rsm_resolution=self.resolution)
+            self.vao.render(moderngl.TRIANGLES)
+
+    def bind(self, program: moderngl.Program, unit: int) -> int:
+        for name, tex in (("u_rsm_position", self.position), ("u_rsm_normal", self.normal), ("u_rsm_flux", self.flux)):
+            if name in program:
+                tex.use(unit)
+                program[name].value = unit
+                unit += 1
+        set_uniforms(program, u_rsm_tiles_x=self.tiles_x, u_rsm_resolution=self.resolution,
+                     u_rsm_layer_count=len(self.layers))
+        return unit
+
+    def release(self) -> None:
+        park(self.gpu.ctx)
+        for obj in (self.fbo, self.position, self.normal, self.flux, self.depth, self.program):
+            obj.release()
+
+
+def expand_needs(needs) -> frozenset:
+    """Close a method's `needs` over the pass dependencies (direct -> gbuffer (+ shadow_map))."""
+    needs = frozenset(needs)
+    unknown = needs - KNOWN_NEEDS - {"precompute"}
+    if unknown:
+        raise ValueError(f"unknown shared pass(es) {sorted(unknown)}; known: {sorted(KNOWN_NEEDS)}")
+    if "direct" in needs:
+        needs |= {"gbuffer"}
+    return needs
+
+
+class SharedPasses:
+    """The shared passes one method needs for one view; only those are built and rendered."""
+
+    def __init__(self, gpu: GpuScene, view: View, needs, shadow_resolution: int = 1024,
+                 rsm_resolution: int = 128):
+        self.gpu, self.view = gpu, view
+        self.needs = expand_needs(needs)
+        self.gbuffer = GBuffer(gpu, view.width, view.height) if "gbuffer" in self.needs else None
+        self.shadows = ShadowMaps(gpu, shadow_resolution) if "shadow_map" in self.needs else None
+        self.direct = DirectPass(gpu, self.gbuffer, self.shadows) if "direct" in self.needs else None
+        self.rsm = ReflectiveShadowMap(gpu, rsm_resolution) if "rsm" in self.needs else None
+        check_gl(gpu.ctx, "building shared passes")
+
+    @property
+    def stages(self) -> tuple:
+        out = []
+        if self.gbuffer is not None or self.shadows is not None:
+            out.append("gbuffer_shadow")
+        if self.direct is not None:
+            out.append("direct_light")
+        if self.rsm is not None:
+            out.append("rsm")
+        return tuple(out)
+
+    def render(self, prof: StageProfiler) -> None:
+        if self.gbuffer is not None or self.shadows is not None:
+            with prof.stage("gbuffer_shadow"):
+                if self.gbuffer is not None:
+                    self.gbuffer.render(self.view)
+                if self.shadows is not None:
+                    self.shadows.render()
+        if self.direct is not None:
+            with prof.stage("direct_light"):
+                self.direct.render()
+        if self.rsm is not None:
+            with prof.stage("rsm"):
+                self.rsm.render()
+
+    def release(self) -> None:
+        for p in (self.direct, self.rsm, self.shadows, self.gbuffer):
+            if p is not None:
+                p.release()
+
+
+def frame_random(seed: int, index: int, stream: int = 0) -> int:
+    """A uint32 for (seed, frame index, stream): the per-frame `u_rand` of stochastic methods."""
+    ss = np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(index), int(stream), 0x75726E64])
+    return int(ss.generate_state(1, dtype=np.uint32)[0])
+
+
+@dataclass
+class Frame:
+    """What a method's render() receives: the GL objects of this view and the frame's index."""
+    ctx: moderngl.Context
+    gpu: GpuScene
+    view: View
+    passes: SharedPasses
+    index: int
+    seed: int
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def width(self) -> int:
+        return self.view.width
+
+    @property
+    def height(self) -> int:
+        return self.view.height
+
+    def random_u32(self, stream: int = 0) -> int:
+        return frame_random(self.seed, self.index, stream)
+
+
+# ------------------------------------------------------------------ conveniences (tests, reference)
+def render_gbuffer(ctx: moderngl.Context, scene: Scene, camera_name: str, width: int, height: int) -> dict:
+    """GBuffer of one view read back to numpy (world positions, mask, normals, albedo, triangle id)."""
+    gpu = GpuScene(ctx, scene)
+    try:
+        passes = SharedPasses(gpu, gpu.view(camera_name, width, height), {"gbuffer"})
+        passes.render(StageProfiler(ctx))
+        check_gl(ctx, "render_gbuffer")
+        out = passes.gbuffer.read()
+        passes.release()
+        return out
+    finally:
+        gpu.release()
+
+
+def render_direct(ctx: moderngl.Context, scene: Scene, camera_name: str, width: int, height: int,
+                  shadows: bool = True, shadow_resolution: int = 2048) -> np.ndarray:
+    """Direct radiance of one view (HxWx3 float32, row 0 at the top)."""
+    gpu = GpuScene(ctx, scene)
+    try:
+        needs = {"direct", "shadow_map"} if shadows else {"direct"}
+        passes = SharedPasses(gpu, gpu.view(camera_name, width, height), needs,
+                              shadow_resolution=shadow_resolution)
+        passes.render(StageProfiler(ctx))
+        check_gl(ctx, "render_direct")
+        out = passes.direct.read()
+        passes.release()
+        return out
+    finally:
+        gpu.release()
+
+
+__all__ = ["GBuffer", "ShadowMaps", "DirectPass", "ReflectiveShadowMap", "SharedPasses", "Frame",
+           "render_gbuffer", "render_direct", "read_rgb", "read_rgba", "SHARED_STAGES", "frame_random",
+           "create_context"]
