@@ -1,7 +1,8 @@
 """The method protocol: what a GI method plugin implements, and the small types it uses.
 
 A method never reads files, never times itself and never writes results: the runner does.
-It receives a `Frame` (the shared GL passes already built for this view) and a `StageProfiler`
+`prepare(gpu, scene, facts, params, view)` is untimed (allocations at the view's resolution,
+precomputation); `render(frame, prof)` is timed. It receives a `Frame` (the shared GL passes already built for this view) and a `StageProfiler`
 whose `stage(name)` context manager wraps each of its GPU stages in a timer query.
 """
 from __future__ import annotations
@@ -71,7 +72,8 @@ def resolve_params(method_cls, overrides: dict | None) -> dict:
 
 @dataclass
 class FrameOutput:
-    """What a method returns for one frame: linear RGB radiance, float32, HxWx3, top row first.
+    """What a method returns for one frame: linear RGB radiance, either numpy float32 HxWx3
+    (row 0 at the top) or GL textures that the runner reads back outside the timed region.
 
     `direct` is usually the shared direct pass; `indirect` the method's one-bounce estimate.
     `skipped_stages` lists the stages this frame did not need (recorded as skipped).
@@ -98,8 +100,23 @@ class Method(Protocol):
     params: ClassVar[dict]
     needs: ClassVar[frozenset]
 
-    def prepare(self, gpu, scene, facts, params: dict) -> None: ...
+    def prepare(self, gpu, scene, facts, params: dict, view) -> None: ...
 
     def render(self, frame, prof) -> FrameOutput: ...
 
     def release(self) -> None: ...
+
+
+class MethodBase:
+    """Convenience base: empty params/stages/needs, no-op release. Subclasses set the ClassVars."""
+    name: ClassVar[str] = ""
+    summary: ClassVar[str] = ""
+    stages: ClassVar[tuple] = ()
+    params: ClassVar[dict] = {}
+    needs: ClassVar[frozenset] = frozenset()
+
+    def prepare(self, gpu, scene, facts, params: dict, view) -> None:
+        self.params = params
+
+    def release(self) -> None:
+        pass

@@ -18,7 +18,7 @@ from .camera import View, look_at, orthographic, perspective
 from .context import check_gl, create_context, park
 from .gpu_scene import GpuScene
 from .profiler import StageProfiler
-from .shaders import GLOBAL_DEFINES, load_program, set_uniforms
+from .shaders import GLOBAL_DEFINES, has_member, load_program, set_uniforms
 
 SHADER_DIR = Path(__file__).parent / "shaders"
 SHARED_STAGES = ("gbuffer_shadow", "direct_light", "rsm")
@@ -116,7 +116,7 @@ class GBuffer:
         unit = first_unit
         for name, tex in (("u_gbuffer_position", self.position), ("u_gbuffer_normal", self.normal),
                           ("u_gbuffer_albedo", self.albedo), ("u_gbuffer_geo_normal", self.geo_normal)):
-            if name in program:
+            if has_member(program, name):
                 tex.use(unit)
                 program[name].value = unit
                 unit += 1
@@ -175,7 +175,7 @@ class ShadowMaps:
     def bind(self, program: moderngl.Program, unit: int) -> int:
         """Bind atlas + layer records for shadow.glsl; returns the next free texture unit."""
         self.layer_buffer.bind_to_storage_buffer(GLOBAL_DEFINES["BINDING_SHADOW_LAYERS"])
-        if "u_shadow_atlas" in program:
+        if has_member(program, "u_shadow_atlas"):
             self.atlas.use(unit)
             program["u_shadow_atlas"].value = unit
             set_uniforms(program, u_shadow_tiles_x=self.tiles_x, u_shadow_resolution=self.resolution)
@@ -262,7 +262,7 @@ class ReflectiveShadowMap:
 
     def bind(self, program: moderngl.Program, unit: int) -> int:
         for name, tex in (("u_rsm_position", self.position), ("u_rsm_normal", self.normal), ("u_rsm_flux", self.flux)):
-            if name in program:
+            if has_member(program, name):
                 tex.use(unit)
                 program[name].value = unit
                 unit += 1

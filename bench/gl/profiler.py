@@ -52,7 +52,5 @@ class StageProfiler:
         return out
 
     def release(self) -> None:
-        for pool in self._queries.values():
-            for q in pool:
-                q.release()
+        # moderngl Query objects have no release(); dropping them lets moderngl free them.
         self._queries.clear()

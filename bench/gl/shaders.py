@@ -123,12 +123,17 @@ def load_compute(ctx: moderngl.Context, path, defines: dict | None = None) -> mo
         raise GLError(f"{path.name}: {exc}") from None
 
 
-def set_uniforms(prog: moderngl.Program, **values) -> None:
+def has_member(prog, name: str) -> bool:
+    """True if the program (or compute shader) has an active uniform/attribute `name`."""
+    return prog.get(name, None) is not None
+
+
+def set_uniforms(prog, **values) -> None:
     """Set the uniforms the program actually uses (the compiler drops unused ones)."""
     for name, value in values.items():
-        if name not in prog:
+        member = prog.get(name, None)
+        if member is None:
             continue
-        member = prog[name]
         if isinstance(value, np.ndarray):
             if value.dtype.kind in "iu":
                 member.write(np.ascontiguousarray(value).astype(value.dtype).tobytes())

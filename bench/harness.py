@@ -1,0 +1,100 @@
+"""Run one method on one view: build the shared passes it needs, prepare it (untimed), render
+warm-up and timed frames, read its images back. The runner calls this once per result row;
+tests call it directly.
+
+Frame 0 is always a warm-up frame and its images are the row's images, so the written image
+does not depend on how many frames are timed (same seed -> same image).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import moderngl
+import numpy as np
+
+from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, check_gl, read_rgb
+from bench.method import FrameOutput, resolve_params
+from bench.scene import Scene, SceneFacts, compute_facts
+
+
+@dataclass
+class RenderResult:
+    direct: np.ndarray
+    indirect: np.ndarray
+    frame_ms: list = field(default_factory=list)        # CPU wall ms per timed frame, GPU finished
+    stage_ms: dict = field(default_factory=dict)        # stage -> list of ms per timed frame
+    skipped_stages: tuple = ()
+    params: dict = field(default_factory=dict)
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def combined(self) -> np.ndarray:
+        return self.direct + self.indirect
+
+
+def to_numpy(image, shape) -> np.ndarray:
+    if image is None:
+        return np.zeros(shape, dtype=np.float32)
+    if isinstance(image, moderngl.Texture):
+        return read_rgb(image)
+    arr = np.asarray(image, dtype=np.float32)
+    if arr.shape != shape:
+        raise ValueError(f"method returned an image of shape {arr.shape}, expected {shape}")
+    return arr
+
+
+def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, width: int, height: int,
+               params: dict | None = None, seed: int = 0, warmup: int = 1, frames: int = 3,
+               facts: SceneFacts | None = None, gpu: GpuScene | None = None,
+               shadow_resolution: int = 1024) -> RenderResult:
+    if warmup < 1:
+        raise ValueError("warmup must be >= 1 (frame 0 gives the images)")
+    if frames < 1:
+        raise ValueError("frames must be >= 1")
+    facts = facts or compute_facts(scene)
+    params = resolve_params(method_cls, params)
+    own_gpu = gpu is None
+    gpu = gpu or GpuScene(ctx, scene, seed=seed, facts=facts)
+    view = gpu.view(camera, width, height)
+    passes = SharedPasses(gpu, view, method_cls.needs, shadow_resolution=shadow_resolution)
+    method = method_cls()
+    shape = (height, width, 3)
+    try:
+        method.prepare(gpu, scene, facts, params, view)
+        check_gl(ctx, f"method '{method_cls.name}' prepare")
+        prof = StageProfiler(ctx, passes.stages + tuple(method_cls.stages))
+        result = RenderResult(direct=None, indirect=None, params=params)
+        skipped: set = set()
+        for index in range(warmup + frames):
+            prof.begin_frame()
+            frame = Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=index, seed=seed)
+            t0 = time.perf_counter()
+            passes.render(prof)
+            out: FrameOutput = method.render(frame, prof)
+            ctx.finish()
+            wall_ms = (time.perf_counter() - t0) * 1e3
+            check_gl(ctx, f"method '{method_cls.name}' frame {index}")
+            skipped.update(out.skipped_stages)
+            if index == 0:
+                result.direct = to_numpy(out.direct, shape)
+                result.indirect = to_numpy(out.indirect, shape)
+                result.extra = dict(out.extra)
+            if index >= warmup:
+                result.frame_ms.append(wall_ms)
+                for stage, ms in prof.collect().items():
+                    result.stage_ms.setdefault(stage, []).append(ms)
+        result.skipped_stages = tuple(sorted(skipped))
+        for name, img in (("direct", result.direct), ("indirect", result.indirect)):
+            if not np.all(np.isfinite(img)):
+                bad = int((~np.isfinite(img)).any(axis=2).sum())
+                raise FloatingPointError(f"method '{method_cls.name}' produced {bad} non-finite {name} pixels")
+        return result
+    finally:
+        method.release()
+        passes.release()
+        prof_release = locals().get("prof")
+        if prof_release is not None:
+            prof_release.release()
+        if own_gpu:
+            gpu.release()

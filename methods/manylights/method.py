@@ -1,0 +1,116 @@
+"""`manylights`: the exact one-bounce unshadowed many-lights sum (eq. 4 of the FLC paper).
+
+Every triangle t is a VPL at y_t (its centroid, or a uniformly jittered point when
+`jitter_frames` > 1) carrying the shadowed direct radiosity B = rho_t E(y_t). Each pixel x sums
+
+    L(x) = rho_x / pi * sum_t L_t(y_t -> x) <n_x, xy>+ |<n_t, yx>| A(t) / max(eps, |x - y_t|)^2
+
+with no indirect visibility. The VPL's emission model is a parameter:
+
+| emission | L_t(w)                          | what estimates it without bias             |
+|----------|---------------------------------|--------------------------------------------|
+| lambert  | rho_t E / pi                    | Mitsuba's unshadowed one-bounce reference  |
+| flc      | rho_t E 3/(2 pi) <n_t, w>+      | Forward Light Cuts (eq. 6)                 |
+
+Both conserve energy: the cosine-weighted integral of L_t over the hemisphere is rho_t E.
+Surfaces are two-sided (as Mitsuba's `twosided` diffuse): a VPL emits on each side the light
+that side receives. With `jitter_frames` > 1 the VPL positions are jittered over their
+triangles and the frames averaged inside one render, which converges to the continuous
+integral over the surfaces. The cost is O(pixels x triangles): a reference baseline, slow.
+
+| parameter      | default | range        | meaning                                          |
+|----------------|---------|--------------|--------------------------------------------------|
+| emission       | lambert | lambert, flc | VPL emission lobe                                |
+| jitter_frames  | 1       | 1 .. 4096    | VPL position samples per triangle (1: centroid)  |
+| eps_rel        | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius |
+| max_triangles  | 2e6     | 1 .. 1e8     | refuse larger scenes (the cost is pixels x T)    |
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from bench.gl import load_compute, load_program, set_uniforms
+from bench.method import FrameOutput, MethodBase, Param
+
+SHADERS = Path(__file__).parent / "shaders"
+VPL_DEFINES = {"BINDING_VPL_TRIANGLES": 3, "BINDING_VPLS": 4}
+
+
+def triangle_records(gpu) -> np.ndarray:
+    """std430 TriangleRecord per triangle: v0 (w = area), v1, v2 in re-centred float32."""
+    tri = gpu.positions[gpu.faces.astype(np.int64)]  # (T, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    rec = np.zeros((len(tri), 3, 4), dtype=np.float32)
+    rec[:, :, :3] = tri
+    rec[:, 0, 3] = area
+    return rec
+
+
+class ManyLights(MethodBase):
+    name = "manylights"
+    summary = "Exact one-bounce unshadowed sum over every triangle as a VPL (FLC eq. 4)"
+    stages = ("vpl_irradiance", "gather")
+    needs = frozenset({"gbuffer", "shadow_map", "direct"})
+    params = {
+        "emission": Param("lambert", "VPL emission lobe", choices=("lambert", "flc")),
+        "jitter_frames": Param(1, "VPL position samples per triangle (1: centroid, no jitter)", 1, 4096,
+                               quality=True, sweep=(1, 4, 16, 64)),
+        "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
+        "max_triangles": Param(2_000_000, "refuse scenes with more triangles", 1, 100_000_000),
+    }
+
+    def prepare(self, gpu, scene, facts, params, view) -> None:
+        self.params = params
+        if gpu.triangle_count > params["max_triangles"]:
+            raise ValueError(f"method 'manylights': scene '{scene.name}' has {gpu.triangle_count} triangles, "
+                             f"more than max_triangles={params['max_triangles']}")
+        ctx = self.ctx = gpu.ctx
+        defines = dict(VPL_DEFINES, EMISSION_FLC=params["emission"] == "flc")
+        self.triangles = ctx.buffer(triangle_records(gpu).tobytes())
+        self.vpls = ctx.buffer(reserve=gpu.triangle_count * 64)
+        self.irradiance = load_compute(ctx, SHADERS / "vpl_irradiance.glsl", defines)
+        self.gather = load_program(ctx, SHADERS / "gather.glsl", defines)
+        self.gather_vao = ctx.vertex_array(self.gather, [])
+        self.indirect = ctx.texture((view.width, view.height), 4, dtype="f4")
+        self.fbo = ctx.framebuffer([self.indirect])
+        self.eps = params["eps_rel"] * gpu.radius
+
+    def render(self, frame, prof) -> FrameOutput:
+        ctx, gpu, passes = self.ctx, frame.gpu, frame.passes
+        jitter_frames = self.params["jitter_frames"]
+        self.fbo.use()
+        ctx.viewport = (0, 0, frame.width, frame.height)
+        self.fbo.clear(0.0, 0.0, 0.0, 0.0)
+        for j in range(jitter_frames):
+            with prof.stage("vpl_irradiance"):
+                gpu.bind_scene_buffers()
+                self.triangles.bind_to_storage_buffer(VPL_DEFINES["BINDING_VPL_TRIANGLES"])
+                self.vpls.bind_to_storage_buffer(VPL_DEFINES["BINDING_VPLS"])
+                passes.shadows.bind(self.irradiance, 0)
+                set_uniforms(self.irradiance, u_triangle_count=gpu.triangle_count, u_light_count=gpu.light_count,
+                             u_rand=frame.random_u32(j), u_jitter=jitter_frames > 1)
+                self.irradiance.run(group_x=(gpu.triangle_count + 63) // 64)
+                ctx.memory_barrier()
+            with prof.stage("gather"):
+                self.fbo.use()
+                ctx.viewport = (0, 0, frame.width, frame.height)
+                ctx.disable(moderngl.DEPTH_TEST)
+                ctx.enable(moderngl.BLEND)
+                ctx.blend_func = moderngl.ONE, moderngl.ONE
+                passes.gbuffer.bind(self.gather)
+                self.vpls.bind_to_storage_buffer(VPL_DEFINES["BINDING_VPLS"])
+                gpu.bind_scene_buffers()
+                set_uniforms(self.gather, u_vpl_count=gpu.triangle_count, u_eps=self.eps,
+                             u_weight=1.0 / jitter_frames)
+                self.gather_vao.render(moderngl.TRIANGLES, vertices=3)
+                ctx.disable(moderngl.BLEND)
+        return FrameOutput(direct=passes.direct.radiance, indirect=self.indirect)
+
+    def release(self) -> None:
+        from bench.gl.context import park
+        park(self.ctx)
+        for obj in (self.fbo, self.indirect, self.gather_vao, self.gather, self.irradiance, self.vpls, self.triangles):
+            obj.release()
