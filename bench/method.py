@@ -13,6 +13,11 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 
+class SkipRow(Exception):
+    """Raised by a method's prepare() when the scene is outside what it handles by design
+    (e.g. `manylights` above its triangle budget). The row is recorded as `skipped: <reason>`."""
+
+
 class ParamError(ValueError):
     """A parameter value outside its declared range (one-line message naming method and parameter)."""
 

@@ -23,7 +23,7 @@ integral over the surfaces. The cost is O(pixels x triangles): a reference basel
 | emission       | lambert | lambert, flc | VPL emission lobe                                |
 | jitter_frames  | 1       | 1 .. 4096    | VPL position samples per triangle (1: centroid)  |
 | eps_rel        | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius |
-| max_triangles  | 2e6     | 1 .. 1e8     | refuse larger scenes (the cost is pixels x T)    |
+| max_triangles  | 2e6     | 1 .. 1e8     | skip larger scenes (the cost is pixels x T)      |
 """
 from __future__ import annotations
 
@@ -33,7 +33,7 @@ import moderngl
 import numpy as np
 
 from bench.gl import load_compute, load_program, set_uniforms
-from bench.method import FrameOutput, MethodBase, Param
+from bench.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
 VPL_DEFINES = {"BINDING_VPL_TRIANGLES": 3, "BINDING_VPLS": 4}
@@ -65,7 +65,7 @@ class ManyLights(MethodBase):
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         if gpu.triangle_count > params["max_triangles"]:
-            raise ValueError(f"method 'manylights': scene '{scene.name}' has {gpu.triangle_count} triangles, "
+            raise SkipRow(f"scene '{scene.name}' has {gpu.triangle_count} triangles, "
                              f"more than max_triangles={params['max_triangles']}")
         ctx = self.ctx = gpu.ctx
         defines = dict(VPL_DEFINES, EMISSION_FLC=params["emission"] == "flc")

@@ -24,7 +24,8 @@ float spot_falloff(Light L, vec3 dir_from_light) {
     float cos_theta = dot(dir_from_light, L.direction_cos_cutoff.xyz);
     if (cos_theta <= L.direction_cos_cutoff.w) return 0.0;
     if (cos_theta >= L.intensity_cos_beam.w) return 1.0;
-    float theta = acos(clamp(cos_theta, -1.0, 1.0));
+    // atan form: llvmpipe's acos is off by ~1e-4 rad, enough to show in the falloff ramp
+    float theta = atan(sqrt(max(1.0 - cos_theta * cos_theta, 0.0)), cos_theta);
     return (L.angles_layers.x - theta) / (L.angles_layers.x - L.angles_layers.y);
 }
 

@@ -1,0 +1,174 @@
+"""`gibench` command line: run, list, report, gate, reference, sweep."""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside", "rooms")
+DEFAULT_METHODS = ("direct", "ir_unshadowed", "ir_shadowed", "manylights", "flc", "ssdo", "dss")
+
+
+def _csv(text: str) -> list[str]:
+    return [t.strip() for t in text.split(",") if t.strip()]
+
+
+def _resolution(text: str) -> tuple[int, int]:
+    try:
+        w, h = text.lower().split("x")
+        return int(w), int(h)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"resolution must be WxH, got {text!r}") from None
+
+
+def _parse_value(text: str):
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _param_sets(items: list[str]) -> dict:
+    """`--param flc.N_avg=128` (one value) or `--param flc.N_avg=64,128,256` (a grid)."""
+    grid: dict = {}
+    for item in items or []:
+        if "=" not in item or "." not in item.split("=", 1)[0]:
+            raise SystemExit(f"gibench: --param expects METHOD.NAME=VALUE[,VALUE...], got {item!r}")
+        lhs, rhs = item.split("=", 1)
+        method, name = lhs.split(".", 1)
+        grid.setdefault(method, {})[name] = [_parse_value(v) for v in rhs.split(",")]
+    out = {}
+    for method, knobs in grid.items():
+        sets = [{}]
+        for name, values in knobs.items():
+            sets = [dict(s, **{name: v}) for s in sets for v in values]
+        out[method] = sets
+    return out
+
+
+def cmd_list(args) -> int:
+    if args.what == "methods":
+        from bench.registry import MethodLoadError, entry_point_target, list_methods, load_method
+        for name in list_methods():
+            if args.verbose:
+                try:
+                    cls = load_method(name)
+                    print(f"{name:16s} {cls.summary}")
+                except MethodLoadError as exc:
+                    print(f"{name:16s} (fails to load: {exc})")
+            else:
+                print(f"{name:16s} {entry_point_target(name)}")
+        return 0
+    from bench.corpus import list_scenes
+    for entry in list_scenes():
+        print(f"{entry.name:18s} {entry.triangle_count:>10,d} tris  {entry.purpose}")
+    return 0
+
+
+def cmd_run(args) -> int:
+    from bench.runner import RunConfig, run
+    from bench.registry import list_methods
+    methods = _csv(args.methods)
+    unknown = [m for m in methods if m not in list_methods()]
+    if unknown:
+        print(f"gibench: unknown method(s) {', '.join(unknown)}; registered: {', '.join(list_methods())}", file=sys.stderr)
+        return 2
+    width, height = args.res
+    cfg = RunConfig(scenes=_csv(args.scenes), methods=methods, width=width, height=height, frames=args.frames,
+                    warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None, force=args.force,
+                    views=_csv(args.views) if args.views else None, params=_param_sets(args.param),
+                    references=not args.no_reference, reference_spp_cap=args.reference_spp,
+                    progress=not args.no_progress)
+    df, runner = run(cfg, log=lambda m: print(m, file=sys.stderr))
+    print(runner.summary())
+    print(f"results: {runner.run_dir / 'results.csv'}")
+    return 0
+
+
+def cmd_report(args) -> int:
+    from reports import build_report
+    path = build_report(Path(args.run), Path(args.out) if args.out else None)
+    print(f"report: {path}")
+    return 0
+
+
+def cmd_gate(args) -> int:
+    from bench.gate import compare_runs
+    result = compare_runs(Path(args.baseline), Path(args.candidate), time_threshold=args.time_threshold,
+                          error_threshold=args.error_threshold, alpha=args.alpha)
+    print(result.markdown())
+    return result.exit_code
+
+
+def cmd_reference(args) -> int:
+    from reference.api import build_references
+    from bench.corpus import load_scene
+    width, height = args.res
+    scenes = [load_scene(s) for s in _csv(args.scenes)]
+    build_references(scenes, width=width, height=height, processes=args.processes, spp_cap=args.spp)
+    return 0
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(prog="gibench", description="Benchmark real-time diffuse GI against Mitsuba 3.")
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("run", help="run methods over scenes")
+    p.add_argument("--scenes", default=",".join(DEFAULT_SCENES), help="corpus names or .toml scene files, comma-separated")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS))
+    p.add_argument("--views", default=None, help="camera names (default: every camera of each scene)")
+    p.add_argument("--res", type=_resolution, default=(128, 96), help="WxH (default 128x96)")
+    p.add_argument("--frames", type=int, default=5, help="timed frames per row")
+    p.add_argument("--warmup", type=int, default=2, help="untimed warm-up frames (>= 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None, help="run folder (default runs/<timestamp>, runs/latest points to it)")
+    p.add_argument("--force", action="store_true", help="re-run rows found in the cache")
+    p.add_argument("--param", action="append", help="METHOD.NAME=VALUE[,VALUE...] (repeatable; lists make a grid)")
+    p.add_argument("--no-reference", action="store_true", help="skip Mitsuba references and error metrics")
+    p.add_argument("--reference-spp", type=int, default=256, help="spp cap of the references")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("list", help="list methods or scenes")
+    p.add_argument("what", choices=("methods", "scenes"))
+    p.add_argument("-v", "--verbose", action="store_true", help="methods: import each to show its summary")
+    p.set_defaults(func=cmd_list)
+
+    p = sub.add_parser("report", help="build the HTML report of a run")
+    p.add_argument("run", help="run folder (e.g. runs/latest)")
+    p.add_argument("--out", default=None)
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("gate", help="compare two runs; non-zero exit on a regression")
+    p.add_argument("baseline")
+    p.add_argument("candidate")
+    p.add_argument("--time-threshold", type=float, default=0.10)
+    p.add_argument("--error-threshold", type=float, default=0.05)
+    p.add_argument("--alpha", type=float, default=0.05)
+    p.set_defaults(func=cmd_gate)
+
+    p = sub.add_parser("reference", help="Mitsuba references")
+    rsub = p.add_subparsers(dest="reference_command", required=True)
+    b = rsub.add_parser("build", help="precompute references for scenes, in parallel processes")
+    b.add_argument("--scenes", default=",".join(DEFAULT_SCENES))
+    b.add_argument("--res", type=_resolution, default=(128, 96))
+    b.add_argument("--spp", type=int, default=256)
+    b.add_argument("--processes", type=int, default=2)
+    b.set_defaults(func=cmd_reference)
+
+    args = parser.parse_args(argv)
+    try:
+        return args.func(args)
+    except KeyboardInterrupt:
+        print("gibench: interrupted; re-run the same command to resume", file=sys.stderr)
+        return 130
+    except (ValueError, FileNotFoundError, KeyError) as exc:
+        # Bad input: one line naming the culprit, no traceback.
+        msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
+        print(f"gibench: {msg}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

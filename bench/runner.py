@@ -1,0 +1,425 @@
+"""The runner: scenes x views x methods x parameter sets -> result rows, images, references.
+
+For each row it builds the GPU scene, the shared passes the method needs, prepares the method
+(untimed), renders warm-up + K timed frames (bench.harness), writes linear EXRs of direct,
+indirect and combined, and appends one row to the run's results table (written atomically
+after every row). A content-addressed row cache means a row whose scene content, method
+version, parameters, resolution, frames, seed and machine are unchanged is not re-run
+(`force=True` re-runs); an interrupted run resumes from its results table.
+A method that fails (to load, to prepare, to render) becomes a `failed: <reason>` row and the
+run goes on with the others.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import json
+import os
+import platform
+import shutil
+import sys
+import traceback
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from bench import results as store
+from bench.imageio import read_exr, write_exr
+from bench.method import SkipRow
+from bench.registry import MethodLoadError, load_method
+from bench.scene import SceneError, compute_facts
+from bench.versioning import git_commit, method_version
+
+IMAGE_COMPONENTS = ("direct", "indirect", "combined")
+
+
+def cache_root() -> Path:
+    return Path(os.environ.get("GIBENCH_CACHE_DIR", Path.home() / ".cache" / "gibench"))
+
+
+@dataclass
+class RunConfig:
+    scenes: list
+    methods: list
+    width: int = 128
+    height: int = 96
+    frames: int = 5
+    warmup: int = 2
+    seed: int = 0
+    out: Path | None = None
+    force: bool = False
+    views: list | None = None                       # camera names; None: every camera of a scene
+    params: dict = field(default_factory=dict)      # method -> list of param dicts (a grid of rows)
+    references: bool = True                         # fetch/build Mitsuba references and metrics
+    reference_spp_cap: int = 256
+    progress: bool = True
+    shadow_resolution: int = 1024
+
+    def validate(self) -> None:
+        for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
+                                       ("frames", self.frames, 1, 10000), ("warmup", self.warmup, 1, 1000)):
+            if not (low <= int(value) <= high):
+                raise ValueError(f"{name}={value} outside [{low}, {high}]")
+        if not self.scenes:
+            raise ValueError("no scene given")
+        if not self.methods:
+            raise ValueError("no method given")
+
+
+def machine_info(ctx) -> dict:
+    from bench.gl import gl_info
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    info = gl_info(ctx)
+    info.update({"cpu": cpu, "cores": os.cpu_count(), "python": sys.version.split()[0],
+                 "platform": platform.platform()})
+    return info
+
+
+def package_versions() -> dict:
+    from importlib.metadata import PackageNotFoundError, version
+    out = {}
+    for pkg in ("gibench", "moderngl", "numpy", "pandas", "mitsuba", "drjit", "OpenImageIO", "trimesh"):
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def row_cache_key(scene, camera: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str) -> str:
+    payload = {"scene": scene.content_hash(), "camera": camera, "camera_def": scene.cameras[camera].to_dict(),
+               "method": method, "method_version": version, "params": params, "width": cfg.width,
+               "height": cfg.height, "frames": cfg.frames, "warmup": cfg.warmup, "seed": cfg.seed,
+               "shadow_resolution": cfg.shadow_resolution, "renderer": renderer}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+def default_run_dir(root: Path = Path("runs")) -> Path:
+    stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+    path = root / stamp
+    n = 1
+    while path.exists():
+        n += 1
+        path = root / f"{stamp}-{n}"
+    return path
+
+
+def point_latest(run_dir: Path) -> None:
+    latest = run_dir.parent / "latest"
+    tmp = run_dir.parent / f".latest.tmp{os.getpid()}"
+    try:
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        tmp.symlink_to(run_dir.name)
+        os.replace(tmp, latest)
+    except OSError:
+        pass
+
+
+def expand_param_sets(cfg: RunConfig, method: str) -> list[dict]:
+    sets = cfg.params.get(method)
+    if not sets:
+        return [{}]
+    return [dict(s) for s in sets]
+
+
+class Runner:
+    """Runs a RunConfig; `run()` returns the results DataFrame."""
+
+    def __init__(self, cfg: RunConfig, log=print):
+        cfg.validate()
+        self.cfg = cfg
+        self.log = log
+        self.run_dir = Path(cfg.out) if cfg.out else default_run_dir()
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        self.rows: list[dict] = []
+        self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
+
+    # ------------------------------------------------------------------ setup
+    def _load_scenes(self):
+        from bench.corpus import load_scene
+        scenes = {}
+        for name in self.cfg.scenes:
+            scene = load_scene(name)
+            scenes[scene.name] = scene
+        return scenes
+
+    def _write_manifest(self, ctx, scenes, facts) -> None:
+        manifest = {
+            "schema_version": store.SCHEMA_VERSION,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "git_commit": git_commit(),
+            "machine": machine_info(ctx),
+            "versions": package_versions(),
+            "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in self.cfg.__dict__.items()},
+            "scene_facts": {name: f.to_dict() for name, f in facts.items()},
+            "scene_purposes": {name: s.purpose for name, s in scenes.items()},
+        }
+        store.atomic_write_text(self.run_dir / "manifest.json", json.dumps(manifest, indent=2, default=str))
+
+    def _existing_rows(self) -> dict:
+        """Rows of an interrupted run in the same folder (resume), by row_key."""
+        try:
+            df = store.load_results(self.run_dir)
+        except FileNotFoundError:
+            return {}
+        if "row_key" not in df.columns:
+            return {}
+        out = {}
+        for rec in df.to_dict("records"):
+            if str(rec.get("status", "")).startswith(("ok", "cached", "skipped")):
+                out[rec["row_key"]] = rec
+        return out
+
+    # ------------------------------------------------------------------ main loop
+    def run(self):
+        from bench.gl import create_context
+        cfg = self.cfg
+        ctx = create_context()
+        scenes = self._load_scenes()
+        facts = {name: compute_facts(s) for name, s in scenes.items()}
+        self._write_manifest(ctx, scenes, facts)
+        if cfg.out is None or self.run_dir.parent.name == "runs":
+            point_latest(self.run_dir)
+        renderer = ctx.info.get("GL_RENDERER", "")
+        resumable = {} if cfg.force else self._existing_rows()
+
+        jobs = []
+        for scene_name, scene in scenes.items():
+            views = cfg.views or sorted(scene.cameras)
+            for view in views:
+                if view not in scene.cameras:
+                    raise SceneError(f"scene '{scene_name}' has no camera '{view}'; cameras: {sorted(scene.cameras)}")
+                for method in cfg.methods:
+                    for pset in expand_param_sets(cfg, method):
+                        jobs.append((scene_name, view, method, pset))
+
+        progress = None
+        if cfg.progress:
+            from tqdm import tqdm
+            progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr)
+        references = ReferenceProvider(self.run_dir, cfg, self.log) if cfg.references else None
+        try:
+            for scene_name, view, method, pset in jobs:
+                if progress is not None:
+                    progress.set_description(f"{scene_name}/{view}/{method}")
+                row = self._run_row(ctx, scenes[scene_name], facts[scene_name], view, method, pset,
+                                    renderer, resumable)
+                if references is not None and not str(row["status"]).startswith("failed"):
+                    references.evaluate(row, scenes[scene_name], view)
+                self.rows.append(row)
+                store.save_results(self.run_dir, self.rows)
+                if progress is not None:
+                    progress.update(1)
+        finally:
+            if progress is not None:
+                progress.close()
+        if references is not None:
+            references.finish()
+        df = store.save_results(self.run_dir, self.rows)
+        return df
+
+    def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable) -> dict:
+        from bench.harness import run_method
+        from bench.method import resolve_params
+        cfg = self.cfg
+        row = {"scene": scene.name, "view": view, "method": method_name, "params": store.params_json(pset),
+               "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": cfg.frames,
+               "warmup": cfg.warmup}
+        try:
+            cls = load_method(method_name)
+            params = resolve_params(cls, pset)
+            version = method_version(cls)
+        except Exception as exc:  # load failure or bad parameter: recorded, the run goes on
+            return self._failed(row, exc)
+        row["params"] = store.params_json(params)
+        row["method_version"] = version
+        key = row_cache_key(scene, view, method_name, version, params, cfg, renderer)
+        row["row_key"] = key
+        image_dir = self.run_dir / "images" / scene.name / view / self._image_folder(method_name, params, cls)
+        row["image_dir"] = str(image_dir.relative_to(self.run_dir))
+
+        if key in resumable and (image_dir / "combined.exr").is_file():
+            self.counts["resumed"] += 1
+            return dict(resumable[key])
+        cached = None if cfg.force else self._cache_lookup(key)
+        if cached is not None:
+            cached_row, cached_dir = cached
+            image_dir.mkdir(parents=True, exist_ok=True)
+            for comp in IMAGE_COMPONENTS:
+                shutil.copyfile(cached_dir / f"{comp}.exr", image_dir / f"{comp}.exr")
+            cached_row.update({k: row[k] for k in ("image_dir",)})
+            cached_row["status"] = "cached"
+            self.counts["cached"] += 1
+            return cached_row
+
+        try:
+            result = run_method(ctx, cls, scene, view, cfg.width, cfg.height, params, seed=cfg.seed,
+                                warmup=cfg.warmup, frames=cfg.frames, facts=facts,
+                                shadow_resolution=cfg.shadow_resolution)
+        except SkipRow as exc:
+            row["status"] = f"skipped: {exc}"
+            self.counts["skipped"] += 1
+            return row
+        except Exception as exc:
+            ctx.error  # clear a pending GL error so the next method starts clean
+            return self._failed(row, exc)
+        images = {"direct": result.direct, "indirect": result.indirect, "combined": result.combined}
+        for comp, img in images.items():
+            write_exr(image_dir / f"{comp}.exr", img)
+        med, iqr = store.summarize_samples(result.frame_ms)
+        row.update({"frame_ms": med, "frame_ms_iqr": iqr, "status": "ok",
+                    "skipped_stages": json.dumps(list(result.skipped_stages)),
+                    "samples.frame_ms": json.dumps([round(v, 4) for v in result.frame_ms]),
+                    "samples.stage_ms": json.dumps({k: [round(v, 4) for v in vs] for k, vs in result.stage_ms.items()})})
+        gpu_total = 0.0
+        for stage, samples in result.stage_ms.items():
+            m, _ = store.summarize_samples(samples)
+            row[f"stage_ms.{stage}"] = m
+            gpu_total += m
+        for stage in result.skipped_stages:
+            row.setdefault(f"stage_ms.{stage}", float("nan"))
+        row["gpu_ms"] = gpu_total
+        for k, v in result.extra.items():
+            if isinstance(v, (int, float, str, bool)):
+                row[f"extra.{k}"] = v
+        self.counts["ok"] += 1
+        self._cache_store(key, row, image_dir)
+        return row
+
+    @staticmethod
+    def _image_folder(method_name: str, params: dict, cls) -> str:
+        """`<method>` for default parameters, `<method>@<hash>` for other parameter sets."""
+        defaults = {k: p.default for k, p in cls.params.items()}
+        if params == defaults:
+            return method_name
+        return f"{method_name}@{hashlib.sha256(store.params_json(params).encode()).hexdigest()[:8]}"
+
+    def _failed(self, row: dict, exc: Exception) -> dict:
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        row["status"] = f"failed: {reason}"
+        self.counts["failed"] += 1
+        self.log(f"gibench: {row['scene']}/{row['view']}/{row['method']} failed: {reason}")
+        if os.environ.get("GIBENCH_DEBUG"):
+            traceback.print_exc()
+        return row
+
+    # ------------------------------------------------------------------ row cache
+    def _cache_dir(self, key: str) -> Path:
+        return cache_root() / "rows" / key[:2] / key
+
+    def _cache_lookup(self, key: str):
+        d = self._cache_dir(key)
+        meta = d / "row.json"
+        if not meta.is_file() or not all((d / f"{c}.exr").is_file() for c in IMAGE_COMPONENTS):
+            return None
+        try:
+            return json.loads(meta.read_text()), d
+        except (OSError, json.JSONDecodeError):
+            return None
+
+    def _cache_store(self, key: str, row: dict, image_dir: Path) -> None:
+        d = self._cache_dir(key)
+        tmp = d.with_name(d.name + f".tmp{os.getpid()}")
+        try:
+            if tmp.exists():
+                shutil.rmtree(tmp)
+            tmp.mkdir(parents=True)
+            for comp in IMAGE_COMPONENTS:
+                shutil.copyfile(image_dir / f"{comp}.exr", tmp / f"{comp}.exr")
+            (tmp / "row.json").write_text(json.dumps(row, default=_json_default))
+            if d.exists():
+                shutil.rmtree(d)
+            os.replace(tmp, d)
+        except OSError as exc:
+            self.log(f"gibench: could not store row cache ({exc})")
+
+    def summary(self) -> str:
+        c = self.counts
+        total = sum(c.values())
+        parts = [f"{c['ok']} rendered", f"{c['cached']} from cache", f"{c['resumed']} resumed",
+                 f"{c['skipped']} skipped", f"{c['failed']} failed"]
+        msg = f"{total} rows: " + ", ".join(parts)
+        if total and c["ok"] == 0 and c["failed"] == 0:
+            msg += " (nothing re-run: every row was unchanged)"
+        return msg
+
+
+def _json_default(o):
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    return str(o)
+
+
+class ReferenceProvider:
+    """Fetches (or builds) the Mitsuba references of each view once and adds error columns.
+
+    Without Mitsuba the run goes on: error columns stay empty (NaN), never zero, and the reason
+    is logged once.
+    """
+
+    def __init__(self, run_dir: Path, cfg: RunConfig, log):
+        self.run_dir, self.cfg, self.log = run_dir, cfg, log
+        self._refs: dict = {}
+        self._unavailable: str | None = None
+        self._curves: dict = {}
+
+    def _reference(self, scene, view: str, component: str):
+        key = (scene.name, view, component)
+        if key in self._refs:
+            return self._refs[key]
+        ref = None
+        if self._unavailable is None:
+            try:
+                from reference.api import ReferenceUnavailable, get_reference
+            except ImportError as exc:
+                self._unavailable = f"reference package unavailable ({exc})"
+                self.log(f"gibench: {self._unavailable}; error columns left empty")
+                self._refs[key] = None
+                return None
+            try:
+                ref = get_reference(scene, view, self.cfg.width, self.cfg.height, component,
+                                    spp_cap=self.cfg.reference_spp_cap)
+            except ReferenceUnavailable as exc:
+                self._unavailable = str(exc)
+                self.log(f"gibench: {exc}; error columns left empty")
+            if ref is not None:
+                out = self.run_dir / "references" / scene.name / view
+                write_exr(out / f"{component}.exr", ref.mean)
+                write_exr(out / f"{component}_variance.exr", ref.variance)
+                self._curves[f"{scene.name}/{view}/{component}"] = ref.curve
+        self._refs[key] = ref
+        return ref
+
+    def evaluate(self, row: dict, scene, view: str) -> None:
+        from bench.evaluation import evaluate_row
+        refs = {c: self._reference(scene, view, c) for c in ("direct", "indirect_unshadowed", "indirect_visible")}
+        for comp, ref in refs.items():
+            if ref is not None:
+                row[f"reference_key.{comp}"] = ref.key
+                row[f"reference_noise_floor.{comp}"] = ref.noise_floor_mse
+                row[f"reference_spp.{comp}"] = ref.spp
+        if all(r is None for r in refs.values()):
+            return
+        image_dir = self.run_dir / row["image_dir"]
+        images = {c: read_exr(image_dir / f"{c}.exr") for c in IMAGE_COMPONENTS}
+        row.update(evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()}))
+
+    def finish(self) -> None:
+        if self._curves:
+            store.atomic_write_text(self.run_dir / "reference_curves.json", json.dumps(self._curves, default=_json_default))
+
+
+def run(cfg: RunConfig, log=print):
+    """Run and return (DataFrame, Runner)."""
+    runner = Runner(cfg, log=log)
+    df = runner.run()
+    return df, runner

@@ -1,0 +1,9 @@
+#!/usr/bin/env bash
+# Set up everything (apt packages, .venv), run the default benchmark and build its HTML report.
+# Extra arguments go to `gibench run` (e.g. --res 256x192 --scenes cornell_spot).
+set -euo pipefail
+cd "$(dirname "$0")/.."
+bash scripts/setup.sh
+export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM-19.so* /usr/lib/*/libLLVM-19.so* 2>/dev/null | head -n 1)}"
+.venv/bin/gibench run "$@"
+.venv/bin/gibench report runs/latest

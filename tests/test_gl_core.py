@@ -1,0 +1,113 @@
+"""GL core: shader loader, GL error detection, shared passes against analytic values."""
+import numpy as np
+import pytest
+
+from bench.gl import GLError, check_gl, render_direct, render_gbuffer
+from bench.gl.shaders import define_block, glsl_literal, stage_sources
+from bench.scene import Camera, DirectionalLight, PointLight, Scene, SpotLight
+
+
+def test_define_injector_honours_zero(tmp_path):
+    assert glsl_literal(0) == "0" and glsl_literal(False) == "0" and glsl_literal(0.0) == "0.0"
+    block = define_block({"LEVELS": 0, "USE_X": False, "EPS": 1e-6})
+    assert "#define LEVELS 0" in block and "#define USE_X 0" in block and "#define EPS 1e-06" in block
+
+
+def test_include_and_stages(tmp_path):
+    (tmp_path / "part.glsl").write_text("float twice(float x) { return 2.0 * x; }\n")
+    prog = tmp_path / "prog.glsl"
+    prog.write_text('#include "part.glsl"\n#include "part.glsl"\n#if defined VERTEX_SHADER\nvoid main(){}\n#endif\n'
+                    '#if defined FRAGMENT_SHADER\nout vec4 c; void main(){ c = vec4(twice(1.0)); }\n#endif\n')
+    src = stage_sources(prog, {"K": 3})
+    assert set(src) == {"vertex_shader", "fragment_shader"}
+    assert src["vertex_shader"].count("float twice") == 1  # included once
+    (tmp_path / "bad.glsl").write_text('#include "missing.glsl"\n')
+    with pytest.raises(GLError, match='missing.glsl" not found'):
+        stage_sources(tmp_path / "bad.glsl")
+
+
+def test_gl_errors_are_detected(gl_ctx):
+    buf = gl_ctx.buffer(reserve=16)
+    with pytest.raises(Exception):
+        buf.read(size=64)  # reading past the end: moderngl raises or GL flags an error
+    gl_ctx.error
+    # A raw invalid GL call leaves an error that check_gl turns into an exception.
+    import ctypes
+    lib = ctypes.CDLL("libGL.so.1") if True else None
+    try:
+        lib.glEnable(0xFFFF)  # GL_INVALID_ENUM
+    except AttributeError:
+        pytest.skip("libGL not loadable")
+    with pytest.raises(GLError, match="GL_INVALID_ENUM"):
+        check_gl(gl_ctx, "glEnable(0xFFFF)")
+
+
+def _quad_scene(lights):
+    v = np.array([[-2, 0, -2], [2, 0, -2], [2, 0, 2], [-2, 0, 2],
+                  [-0.3, 0.5, -0.3], [0.3, 0.5, -0.3], [0.3, 0.5, 0.3], [-0.3, 0.5, 0.3]], float)
+    f = np.array([[0, 2, 1], [0, 3, 2], [4, 6, 5], [4, 7, 6]])
+    return Scene.build("quad", v, f, [0.5, 0.4, 0.3], lights, {"main": Camera([0, 3, 3], [0, 0, 0], fov_y_deg=60)})
+
+
+def test_gbuffer_positions_match_ray_casting(gl_ctx):
+    scene = _quad_scene([PointLight([0, 1, 0], 1.0)])
+    g = render_gbuffer(gl_ctx, scene, "main", 64, 48)
+    from bench.gl.camera import View
+    view = View.create("main", scene.cameras["main"], 64, 48, np.zeros(3), 3.0, np.zeros(3))
+    eye, d = view.primary_rays()
+    t = -eye[1] / d[..., 1]  # hit the floor plane y=0
+    hit = eye + t[..., None] * d
+    floor = g["mask"] & (np.abs(g["position"][..., 1]) < 1e-5)
+    assert floor.sum() > 1000
+    assert np.abs(g["position"][floor] - hit[floor]).max() < 1e-4
+
+
+def test_direct_point_light_and_shadow_exact(gl_ctx):
+    scene = _quad_scene([PointLight([0, 1, 0], [1.0, 2.0, 3.0])])
+    g = render_gbuffer(gl_ctx, scene, "main", 64, 64)
+    unshadowed = render_direct(gl_ctx, scene, "main", 64, 64, shadows=False)
+    shadowed = render_direct(gl_ctx, scene, "main", 64, 64, shadows=True)
+    p = g["position"]
+    floor = g["mask"] & (np.abs(p[..., 1]) < 1e-5)
+    r2 = ((p - np.array([0, 1, 0])) ** 2).sum(-1)
+    expected = np.array([0.5, 0.4, 0.3]) * np.array([1, 2, 3]) / np.pi * (1 / np.sqrt(r2) / r2)[..., None]
+    assert np.allclose(unshadowed[floor], expected[floor], rtol=1e-5)
+    # the occluder's shadow on the floor is the square |x|,|z| < 0.6
+    truth = floor & (np.abs(p[..., 0]) < 0.6) & (np.abs(p[..., 2]) < 0.6)
+    got = floor & (shadowed[..., 0] == 0)
+    assert truth.sum() > 50 and (truth != got).sum() <= 0.01 * floor.sum()
+
+
+def test_spot_falloff_matches_numpy(gl_ctx):
+    spot = SpotLight([0, 1.5, 0], [0, 0, 0], 2.0, cutoff_angle_deg=40, beam_width_deg=20)
+    scene = _quad_scene([spot])
+    g = render_gbuffer(gl_ctx, scene, "main", 64, 64)
+    img = render_direct(gl_ctx, scene, "main", 64, 64, shadows=False)
+    p = g["position"]
+    floor = g["mask"] & (np.abs(p[..., 1]) < 1e-5)
+    d = p - spot.position
+    r = np.linalg.norm(d, axis=-1)
+    cos_axis = (d / r[..., None]) @ spot.direction
+    expected = 0.5 / np.pi * 2.0 * spot.falloff(cos_axis) * (1.5 / r) / r**2
+    ramp = floor & (spot.falloff(cos_axis) > 0) & (spot.falloff(cos_axis) < 1)
+    assert ramp.sum() > 20  # the test covers the falloff ramp, not only the flat beam
+    flat = floor & ~ramp
+    assert np.allclose(img[..., 0][flat], expected[flat], rtol=1e-5, atol=1e-9)
+    # float32 acos on the ramp (GLSL, like Mitsuba's float32 variants) costs a few 1e-3
+    assert np.allclose(img[..., 0][ramp], expected[ramp], rtol=1e-4)
+
+
+def test_directional_light(gl_ctx):
+    scene = _quad_scene([DirectionalLight([0, -1, -1], 3.0)])
+    scene.cameras["main"] = Camera([0, 4, 0], [0, 0, 0], up=[0, 0, -1], fov_y_deg=60)
+    g = render_gbuffer(gl_ctx, scene, "main", 48, 48)
+    img = render_direct(gl_ctx, scene, "main", 48, 48, shadows=True)
+    p = g["position"]
+    floor = g["mask"] & (np.abs(p[..., 1]) < 1e-5)
+    # shadow of the occluder along (0,-1,-1): the square shifted by -0.5 in z
+    lit = floor & ~((np.abs(p[..., 0]) < 0.3) & (np.abs(p[..., 2] + 0.5) < 0.3))
+    expected = 0.5 / np.pi * 3.0 * np.cos(np.pi / 4)
+    inner = lit & ~((np.abs(p[..., 0]) < 0.4) & (np.abs(p[..., 2] + 0.5) < 0.4))
+    assert np.allclose(img[..., 0][inner], expected, rtol=1e-5)
+    shade = floor & (np.abs(p[..., 0]) < 0.2) & (np.abs(p[..., 2] + 0.5) < 0.2)
+    assert shade.sum() > 5 and np.all(img[..., 0][shade] == 0)
