@@ -40,3 +40,33 @@ def make_open_box(light_position=(0.2, 1.2, 0.1), intensity=2.0):
 @pytest.fixture
 def open_box():
     return make_open_box()
+
+
+def grid_quad(origin, u, v, n):
+    """An n x n grid of quads (2 n^2 triangles) spanning origin + [0,1]u + [0,1]v."""
+    origin, u, v = (np.asarray(a, float) for a in (origin, u, v))
+    s = np.linspace(0, 1, n + 1)
+    verts = origin + s[:, None, None] * u + s[None, :, None] * v
+    verts = verts.reshape(-1, 3)
+    idx = np.arange((n + 1) * (n + 1)).reshape(n + 1, n + 1)
+    a, b, c, d = idx[:-1, :-1].ravel(), idx[1:, :-1].ravel(), idx[1:, 1:].ravel(), idx[:-1, 1:].ravel()
+    faces = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    return verts, faces
+
+
+def make_grid_box(n=6, light_position=(0.2, 1.2, 0.1), intensity=2.0):
+    """The open box of make_open_box with each wall an n x n grid (6 n^2 triangles)."""
+    from bench.scene import Camera, PointLight, Scene
+    parts = [grid_quad([-1, 0, -1], [0, 0, 2], [2, 0, 0], n),   # floor, normal +y
+             grid_quad([-1, 0, -1], [2, 0, 0], [0, 2, 0], n),   # back wall, normal +z
+             grid_quad([-1, 0, -1], [0, 2, 0], [0, 0, 2], n)]   # left wall, normal +x
+    colours = ([0.8, 0.8, 0.8], [0.2, 0.8, 0.2], [0.8, 0.2, 0.2])
+    verts, faces, albedo, offset = [], [], [], 0
+    for (v, f), col in zip(parts, colours):
+        verts.append(v)
+        faces.append(f + offset)
+        albedo.append(np.tile(col, (len(f), 1)))
+        offset += len(v)
+    return Scene.build("grid_box", np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo),
+                       [PointLight(light_position, [intensity] * 3)],
+                       {"main": Camera([0, 1, 3.5], [0, 0.8, 0], fov_y_deg=50)})

@@ -67,7 +67,7 @@ class ManyLights(MethodBase):
         if gpu.triangle_count > params["max_triangles"]:
             raise SkipRow(f"scene '{scene.name}' has {gpu.triangle_count} triangles, "
                              f"more than max_triangles={params['max_triangles']}")
-        ctx = self.ctx = gpu.ctx
+        ctx = gpu.ctx
         defines = dict(VPL_DEFINES, EMISSION_FLC=params["emission"] == "flc")
         self.triangles = ctx.buffer(triangle_records(gpu).tobytes())
         self.vpls = ctx.buffer(reserve=gpu.triangle_count * 64)
@@ -76,6 +76,7 @@ class ManyLights(MethodBase):
         self.gather_vao = ctx.vertex_array(self.gather, [])
         self.indirect = ctx.texture((view.width, view.height), 4, dtype="f4")
         self.fbo = ctx.framebuffer([self.indirect])
+        self.ctx = ctx
         self.eps = params["eps_rel"] * gpu.radius
 
     def render(self, frame, prof) -> FrameOutput:
@@ -111,6 +112,10 @@ class ManyLights(MethodBase):
 
     def release(self) -> None:
         from bench.gl.context import park
+        if getattr(self, "ctx", None) is None:  # prepare() stopped before allocating anything
+            return
         park(self.ctx)
-        for obj in (self.fbo, self.indirect, self.gather_vao, self.gather, self.irradiance, self.vpls, self.triangles):
-            obj.release()
+        for name in ("fbo", "indirect", "gather_vao", "gather", "irradiance", "vpls", "triangles"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.release()
