@@ -145,10 +145,15 @@ class Runner:
 
     # ------------------------------------------------------------------ setup
     def _load_scenes(self):
-        from bench.corpus import load_scene
+        """Corpus names, .toml scene files, or Scene objects (tests, scripts)."""
+        from bench.scene import Scene
         scenes = {}
-        for name in self.cfg.scenes:
-            scene = load_scene(name)
+        for item in self.cfg.scenes:
+            if isinstance(item, Scene):
+                scene = item
+            else:
+                from bench.corpus import load_scene
+                scene = load_scene(item)
             scenes[scene.name] = scene
         return scenes
 
@@ -159,7 +164,8 @@ class Runner:
             "git_commit": git_commit(),
             "machine": machine_info(ctx),
             "versions": package_versions(),
-            "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in self.cfg.__dict__.items()},
+            "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in self.cfg.__dict__.items()
+                          if k != "scenes"} | {"scenes": [getattr(s, "name", s) for s in self.cfg.scenes]},
             "scene_facts": {name: f.to_dict() for name, f in facts.items()},
             "scene_purposes": {name: s.purpose for name, s in scenes.items()},
         }

@@ -1,0 +1,116 @@
+"""The runner: images and results, the row cache, resume, failures, skipped rows, determinism."""
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench.imageio import read_exr
+from bench.runner import RunConfig, run
+from tests.conftest import make_grid_box, make_open_box
+
+
+def cfg(tmp_path, out="run", **kw):
+    base = dict(scenes=[make_open_box()], methods=["direct", "manylights"], width=32, height=24, frames=2,
+                warmup=1, out=tmp_path / out, references=False, progress=False)
+    base.update(kw)
+    return RunConfig(**base)
+
+
+@pytest.fixture(autouse=True)
+def private_cache(tmp_path, monkeypatch):
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+
+
+def test_run_writes_contract(tmp_path):
+    df, runner = run(cfg(tmp_path), log=lambda m: None)
+    d = runner.run_dir
+    assert (d / "manifest.json").is_file() and (d / "results.csv").is_file() and (d / "results.parquet").is_file()
+    manifest = json.loads((d / "manifest.json").read_text())
+    assert manifest["machine"]["gl_renderer"] and manifest["scene_facts"]["open_box"]["triangle_count"] == 6
+    csv = pd.read_csv(d / "results.csv")
+    for col in ("scene", "view", "method", "params", "seed", "width", "height", "frame_ms", "gpu_ms",
+                "status", "method_version", "stage_ms.gbuffer_shadow", "stage_ms.gather"):
+        assert col in csv.columns, col
+    assert list(csv.status) == ["ok", "ok"]
+    assert np.isnan(csv.set_index("method").loc["direct", "stage_ms.gather"])
+    for method in ("direct", "manylights"):
+        for comp in ("direct", "indirect", "combined"):
+            img = read_exr(d / "images" / "open_box" / "main" / method / f"{comp}.exr")
+            assert img.shape == (24, 32, 3)
+    ind = read_exr(d / "images/open_box/main/manylights/indirect.exr")
+    assert ind.max() > 0 and read_exr(d / "images/open_box/main/direct/indirect.exr").max() == 0
+    samples = json.loads(csv.set_index("method").loc["manylights", "samples.stage_ms"])
+    assert len(samples["gather"]) == 2
+
+
+def test_second_identical_run_reruns_nothing(tmp_path):
+    run(cfg(tmp_path, out="a"), log=lambda m: None)
+    df, runner = run(cfg(tmp_path, out="b"), log=lambda m: None)
+    assert list(df.status) == ["cached", "cached"] and runner.counts["ok"] == 0
+    assert "nothing re-run" in runner.summary()
+    a = read_exr(tmp_path / "a/images/open_box/main/manylights/combined.exr")
+    b = read_exr(tmp_path / "b/images/open_box/main/manylights/combined.exr")
+    assert np.array_equal(a, b)
+    df, runner = run(cfg(tmp_path, out="c", force=True), log=lambda m: None)
+    assert list(df.status) == ["ok", "ok"]
+    # a changed parameter or albedo is a different row: rendered
+    df, _ = run(cfg(tmp_path, out="d", params={"manylights": [{"emission": "flc"}]}), log=lambda m: None)
+    assert list(df.status) == ["cached", "ok"]
+    df, _ = run(cfg(tmp_path, out="e", scenes=[make_open_box(intensity=3.0)]), log=lambda m: None)
+    assert list(df.status) == ["ok", "ok"]
+
+
+def test_same_seed_same_images_without_cache(tmp_path):
+    scene = make_grid_box(4)
+    common = dict(scenes=[scene], methods=["manylights"], params={"manylights": [{"jitter_frames": 4}]})
+    run(cfg(tmp_path, out="a", seed=7, **common), log=lambda m: None)
+    run(cfg(tmp_path, out="b", seed=7, force=True, **common), log=lambda m: None)
+    run(cfg(tmp_path, out="c", seed=8, force=True, **common), log=lambda m: None)
+    imgs = [read_exr(next((tmp_path / o / "images/grid_box/main").glob("manylights*")) / "indirect.exr")
+            for o in "abc"]
+    assert np.array_equal(imgs[0], imgs[1]) and not np.array_equal(imgs[0], imgs[2])
+
+
+def test_failures_are_recorded_and_others_go_on(tmp_path, monkeypatch):
+    from bench import registry
+    from importlib.metadata import EntryPoint
+    real = registry.entry_points
+    broken = EntryPoint("broken", "no_such_module_abc:Broken", registry.GROUP)
+    monkeypatch.setattr(registry, "entry_points", lambda group: list(real(group=group)) + [broken])
+    df, runner = run(cfg(tmp_path, methods=["broken", "direct"],
+                         params={"direct": [{}]}), log=lambda m: None)
+    status = dict(zip(df.method, df.status))
+    assert status["broken"].startswith("failed: method 'broken' failed to load")
+    assert status["direct"] == "ok"
+    # an out-of-range parameter fails that row only
+    df, _ = run(cfg(tmp_path, out="p", params={"manylights": [{"jitter_frames": 0}]}), log=lambda m: None)
+    status = dict(zip(df.method, df.status))
+    assert "jitter_frames" in status["manylights"] and status["direct"] in ("ok", "cached")
+
+
+def test_skipped_rows(tmp_path):
+    df, runner = run(cfg(tmp_path, params={"manylights": [{"max_triangles": 2}]}), log=lambda m: None)
+    status = dict(zip(df.method, df.status))
+    assert status["manylights"].startswith("skipped:") and runner.counts["skipped"] == 1
+
+
+def test_interrupted_run_resumes(tmp_path, monkeypatch):
+    from bench import runner as runner_mod
+    calls = {"n": 0}
+    real = runner_mod.Runner._run_row
+
+    def interrupt_second(self, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(runner_mod.Runner, "_run_row", interrupt_second)
+    with pytest.raises(KeyboardInterrupt):
+        run(cfg(tmp_path, out="r"), log=lambda m: None)
+    assert len(pd.read_csv(tmp_path / "r/results.csv")) == 1  # the finished row was saved
+    monkeypatch.setattr(runner_mod.Runner, "_run_row", real)
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "other-cache"))  # no help from the cache
+    df, runner = run(cfg(tmp_path, out="r"), log=lambda m: None)
+    assert runner.counts["resumed"] == 1 and runner.counts["ok"] == 1 and len(df) == 2
