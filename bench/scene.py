@@ -380,10 +380,19 @@ def is_closed(vertices: np.ndarray, faces: np.ndarray) -> bool:
     """Watertight test: weld vertices that coincide (to 1e-9 of the extent), then every
     undirected edge must be used by exactly two triangles."""
     extent = float(np.linalg.norm(vertices.max(0) - vertices.min(0))) or 1.0
-    quantised = np.round(vertices / (extent * 1e-9)).astype(np.int64)
-    _, weld = np.unique(quantised, axis=0, return_inverse=True)
-    f = weld.reshape(-1)[faces]
+    quantised = np.round((vertices - vertices.min(0)) / (extent * 1e-9)).astype(np.int64)
+    # weld through a lexicographic sort (np.unique(axis=0) is several times slower on millions)
+    order = np.lexsort(quantised.T[::-1])
+    sorted_q = quantised[order]
+    new_group = np.ones(len(order), dtype=bool)
+    new_group[1:] = np.any(sorted_q[1:] != sorted_q[:-1], axis=1)
+    weld = np.empty(len(order), dtype=np.int64)
+    weld[order] = np.cumsum(new_group) - 1
+    f = weld[faces]
     edges = np.concatenate([f[:, [0, 1]], f[:, [1, 2]], f[:, [2, 0]]])
     edges.sort(axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
+    codes = edges[:, 0] * (int(weld.max()) + 1) + edges[:, 1]
+    codes.sort()
+    boundaries = np.flatnonzero(np.diff(codes)) + 1
+    counts = np.diff(np.concatenate([[0], boundaries, [len(codes)]]))
     return bool(np.all(counts == 2))
