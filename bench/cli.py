@@ -87,8 +87,17 @@ def cmd_run(args) -> int:
 
 
 def cmd_report(args) -> int:
-    from reports import build_report
-    path = build_report(Path(args.run), Path(args.out) if args.out else None)
+    run_dir = Path(args.run)
+    if not (run_dir / "results.csv").is_file() and not (run_dir / "results.parquet").is_file():
+        print(f"gibench: {run_dir} is not a run folder (no results.csv)", file=sys.stderr)
+        return 2
+    try:
+        from reports import build_report
+    except ImportError:  # the comparison report is optional; the quick summary always exists
+        from bench.summary import write_summary
+        _, path = write_summary(run_dir)
+    else:
+        path = build_report(run_dir, Path(args.out) if args.out else None)
     print(f"report: {path}")
     return 0
 

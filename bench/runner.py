@@ -231,6 +231,8 @@ class Runner:
         if references is not None:
             references.finish()
         df = store.save_results(self.run_dir, self.rows)
+        from bench.summary import write_summary
+        write_summary(self.run_dir)
         return df
 
     def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable) -> dict:

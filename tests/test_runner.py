@@ -42,6 +42,8 @@ def test_run_writes_contract(tmp_path):
     assert ind.max() > 0 and read_exr(d / "images/open_box/main/direct/indirect.exr").max() == 0
     samples = json.loads(csv.set_index("method").loc["manylights", "samples.stage_ms"])
     assert len(samples["gather"]) == 2
+    summary = (d / "summary.md").read_text()
+    assert "| open_box | main | manylights |" in summary and (d / "summary.html").is_file()
 
 
 def test_second_identical_run_reruns_nothing(tmp_path):
