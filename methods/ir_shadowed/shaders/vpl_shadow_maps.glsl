@@ -1,0 +1,41 @@
+// All VPL hemicubes in one instanced draw: instance = (VPL k, face f); the vertex shader
+// projects with face f's 90-degree frustum, clips to it with gl_ClipDistance and moves the
+// clip-space result into the face's atlas tile (an affine map of clip space, so clipping
+// and perspective interpolation stay exact). Each texel keeps the smallest distance to the
+// VPL (MIN blending into R32F, no depth buffer).
+#include "hemicube.glsl"
+uniform float u_near;
+uniform float u_far;
+
+#if defined VERTEX_SHADER
+in vec3 in_position;
+out vec3 v_rel;
+out float gl_ClipDistance[4];
+void main() {
+    int k = gl_InstanceID / HEMICUBE_FACES, f = gl_InstanceID % HEMICUBE_FACES;
+    Vpl v = vpls[k];
+    vec3 axis, right, up;
+    hemicube_face(f, v.normal.xyz, axis, right, up);
+    vec3 rel = in_position - hemicube_origin(v);
+    float w = dot(rel, axis);
+    vec4 clip = vec4(dot(rel, right), dot(rel, up), (w * (u_far + u_near) - 2.0 * u_far * u_near) / (u_far - u_near), w);
+    gl_ClipDistance[0] = w - clip.x;
+    gl_ClipDistance[1] = w + clip.x;
+    gl_ClipDistance[2] = w - clip.y;
+    gl_ClipDistance[3] = w + clip.y;
+    vec2 tile = vec2(hemicube_tile(k, f));
+    vec2 tiles = vec2(u_hemicube_tiles_x, u_hemicube_tiles_y);
+    // ndc in [-1, 1] -> ((ndc + 1) / 2 + tile) / tiles * 2 - 1, times w
+    clip.xy = (clip.xy + w * (1.0 + 2.0 * tile)) / tiles - w;
+    v_rel = rel;
+    gl_Position = clip;
+}
+#endif
+
+#if defined FRAGMENT_SHADER
+in vec3 v_rel;
+layout(location = 0) out float out_distance;
+void main() {
+    out_distance = length(v_rel);
+}
+#endif

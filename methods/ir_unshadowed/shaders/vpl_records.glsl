@@ -1,0 +1,30 @@
+// VPL records written by vpl_sample.glsl and read by the gather (and ir_shadowed's hemicubes),
+// and the RSM texel indexing shared by the CDF passes.
+#ifndef VPL_RECORDS_GLSL
+#define VPL_RECORDS_GLSL
+
+struct Vpl {
+    vec4 position;  // xyz re-centred position of the RSM texel's surface point, w unused
+    vec4 normal;    // xyz unit geometric normal facing the light: the VPL emits on this side
+    vec4 flux;      // rgb flux the VPL carries (W): rho Phi_in of its texel / (N pdf)
+};
+layout(std430, binding = BINDING_VPLS) buffer VplBlock { Vpl vpls[]; };
+
+// RSM atlas layout (ReflectiveShadowMap.bind): layer k is tile (k % tiles_x, k / tiles_x).
+uniform int u_rsm_tiles_x;
+uniform int u_rsm_resolution;
+uniform int u_rsm_layer_count;
+
+uint rsm_texel_count() { return uint(u_rsm_layer_count * u_rsm_resolution * u_rsm_resolution); }
+
+ivec2 rsm_atlas_texel(uint i) {
+    uint res = uint(u_rsm_resolution);
+    uint layer = i / (res * res), within = i % (res * res);
+    uvec2 tile = uvec2(layer % uint(u_rsm_tiles_x), layer / uint(u_rsm_tiles_x));
+    return ivec2(tile * res + uvec2(within % res, within / res));
+}
+
+// Rec. 709 luminance: positive weights, so it is > 0 whenever any channel of the flux is.
+float flux_luminance(vec3 flux) { return dot(max(flux, vec3(0.0)), vec3(0.2126, 0.7152, 0.0722)); }
+
+#endif
