@@ -102,6 +102,27 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_sweep(args) -> int:
+    from bench.registry import list_methods
+    from bench.sweep import run_sweep
+    methods = _csv(args.methods)
+    unknown = [m for m in methods if m not in list_methods()]
+    if unknown:
+        print(f"gibench: unknown method(s) {', '.join(unknown)}; registered: {', '.join(list_methods())}", file=sys.stderr)
+        return 2
+    width, height = args.res
+    table, pareto, runner = run_sweep(
+        _csv(args.scenes), methods, log=lambda m: print(m, file=sys.stderr), width=width, height=height,
+        frames=args.frames, warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None,
+        force=args.force, views=_csv(args.views) if args.views else None, references=not args.no_reference,
+        reference_spp_cap=args.reference_spp, progress=not args.no_progress)
+    print(runner.summary())
+    print(f"{len(table)} sweep points, {len(pareto)} on the Pareto fronts")
+    print(f"sweep: {runner.run_dir / 'sweep.csv'}")
+    print(f"pareto: {runner.run_dir / 'pareto.csv'}")
+    return 0
+
+
 def cmd_gate(args) -> int:
     from bench.gate import compare_runs
     result = compare_runs(Path(args.baseline), Path(args.candidate), time_threshold=args.time_threshold,
@@ -138,6 +159,21 @@ def main(argv=None) -> int:
     p.add_argument("--reference-spp", type=int, default=256, help="spp cap of the references")
     p.add_argument("--no-progress", action="store_true")
     p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("sweep", help="run methods across their quality knobs: time-vs-error curves, Pareto fronts")
+    p.add_argument("--scenes", default=",".join(DEFAULT_SCENES), help="corpus names or .toml scene files, comma-separated")
+    p.add_argument("--methods", default=",".join(DEFAULT_METHODS))
+    p.add_argument("--views", default=None, help="camera names (default: every camera of each scene)")
+    p.add_argument("--res", type=_resolution, default=(128, 96), help="WxH (default 128x96)")
+    p.add_argument("--frames", type=int, default=5, help="timed frames per row")
+    p.add_argument("--warmup", type=int, default=2, help="untimed warm-up frames (>= 1)")
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--out", default=None, help="run folder (default runs/<timestamp>)")
+    p.add_argument("--force", action="store_true", help="re-run rows found in the cache")
+    p.add_argument("--no-reference", action="store_true", help="skip Mitsuba references, error metrics and speed-ups")
+    p.add_argument("--reference-spp", type=int, default=256, help="spp cap of the references")
+    p.add_argument("--no-progress", action="store_true")
+    p.set_defaults(func=cmd_sweep)
 
     p = sub.add_parser("list", help="list methods or scenes")
     p.add_argument("what", choices=("methods", "scenes"))

@@ -1,0 +1,271 @@
+"""Error metrics of a method's image against a reference: pure functions on linear-radiance arrays.
+
+Every metric is "lower is better", is computed over the covered pixels only (`mask`, HxW bool:
+background pixels are excluded), and takes HxWx3 linear RGB radiance (any float dtype; it is
+promoted to float64, except FLIP which runs in float32). Non-finite input is rejected with a
+ValueError naming the argument; a mask that covers no pixel gives NaN (nothing to judge).
+
+Two display transforms are shared by every method judged against one reference, so methods on
+a view are compared on one scale (both depend on the reference alone, never on the image):
+  * `tonemap_scale(reference, mask)`: the exposure s = 1 / P99, P99 the 99th percentile of the
+    per-pixel maximum RGB channel of the reference over covered pixels where it is > 0 (s = 1 if
+    there is none). Tone-mapped = clip(s * x, 0, 1). Used by `dssim` and `ciede2000`.
+  * `flip_exposure_range(reference, mask)`: HDR-FLIP's own automatic exposure rule,
+    start = log2(x_max / Y_max), stop = log2(x_max / Y_median), computed over covered pixels
+    whose reference luminance is > 0 (an indirect-only reference can have a zero median over
+    all covered pixels); an all-zero reference uses Y_max = Y_median = 1.
+Spatial metrics (dssim, FLIP) see every pixel outside the mask as black in both images (what
+background is), so nothing outside the mask leaks into their windows.
+"""
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+
+EPS_RELMSE = 0.01          # relative MSE: (x - r)^2 / (r^2 + EPS_RELMSE) (Rousselle/Zwicker convention)
+EPS_SMAPE = 0.01           # SMAPE: |x - r| / (|x| + |r| + EPS_SMAPE) (Vogels et al. 2018 convention)
+TONEMAP_PERCENTILE = 99.0  # reference percentile (of max RGB channel) mapped to display white
+SSIM_WINDOW = 7            # skimage's default uniform window, K1 = 0.01, K2 = 0.03
+FLIP_TONEMAPPER = "aces"   # HDR-FLIP's default tone mapper
+FLIP_PPD = 0.7 * (3840 / 0.7) * math.pi / 180  # FLIP's default, 67.02 pixels per degree (0.7 m from a 0.7 m wide 4K screen)
+LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / sRGB luminance weights (as FLIP uses)
+
+METRICS = {
+    "mse": "mean over covered pixels and RGB channels of (x - r)^2, linear radiance",
+    "relmse": f"mean over covered pixels and RGB channels of (x - r)^2 / (r^2 + {EPS_RELMSE})",
+    "smape": f"mean over covered pixels and RGB channels of |x - r| / (|x| + |r| + {EPS_SMAPE}), in [0, 1)",
+    "dssim": (f"1 - mean over covered pixels of the SSIM map (scikit-image, {SSIM_WINDOW}x{SSIM_WINDOW} uniform "
+              "window, K1=0.01, K2=0.03, data_range=1) of the sRGB-encoded luminance of the tone-mapped images "
+              f"(clip(x / P{TONEMAP_PERCENTILE:g}(reference max channel), 0, 1))"),
+    "flip_mean": ("mean over covered pixels of the HDR-FLIP error map (flip-evaluator, ACES, 67 ppd), exposure "
+                  "range from the reference's covered pixels of positive luminance, shared by all methods (all-zero "
+                  "reference: as if of unit luminance)"),
+    "flip_median": ("error-weighted median of the HDR-FLIP map over covered pixels (FLIP's 'weighted median'): "
+                    "the smallest error e such that errors <= e hold more than half of the total error"),
+    "ciede2000": ("mean over covered pixels of CIEDE2000 (colour-science) between the tone-mapped images "
+                  f"(clip(x / P{TONEMAP_PERCENTILE:g}(reference max channel), 0, 1), linear sRGB -> XYZ -> "
+                  "CIE Lab, D65)"),
+}
+
+
+# ---------------------------------------------------------------------------- input checks
+def _as_rgb(arr, what: str) -> np.ndarray:
+    a = np.asarray(arr)
+    if a.ndim != 3 or a.shape[2] != 3:
+        raise ValueError(f"{what} must be an HxWx3 RGB array, got shape {a.shape}")
+    if not np.issubdtype(a.dtype, np.number):
+        raise ValueError(f"{what} must be numeric, got dtype {a.dtype}")
+    a = a.astype(np.float64, copy=False)
+    bad = ~np.isfinite(a)
+    if bad.any():
+        raise ValueError(f"{what} has {int(bad.any(axis=2).sum())} pixel(s) with NaN or infinite values")
+    return a
+
+
+def _as_mask(mask, shape, what: str = "mask") -> np.ndarray:
+    if mask is None:
+        return np.ones(shape[:2], dtype=bool)
+    m = np.asarray(mask)
+    if m.shape != tuple(shape[:2]):
+        raise ValueError(f"{what} has shape {m.shape}, expected {tuple(shape[:2])} (the image's HxW)")
+    if m.dtype != bool:
+        if not np.all(np.isfinite(m)):
+            raise ValueError(f"{what} has NaN or infinite values")
+        m = m != 0
+    return m
+
+
+def _inputs(image, reference, mask):
+    ref = _as_rgb(reference, "reference")
+    img = _as_rgb(image, "image")
+    if img.shape != ref.shape:
+        raise ValueError(f"image has shape {img.shape} but reference has shape {ref.shape}")
+    return img, ref, _as_mask(mask, ref.shape)
+
+
+def _black_outside(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Uncovered pixels as black background, for metrics whose windows straddle the mask edge."""
+    return np.where(mask[..., None], x, 0.0)
+
+
+# ---------------------------------------------------------------------------- per-pixel metrics
+def mse(image, reference, mask=None) -> float:
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return math.nan
+    return float(np.mean((img[m] - ref[m]) ** 2))
+
+
+def relmse(image, reference, mask=None, eps: float = EPS_RELMSE) -> float:
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return math.nan
+    x, r = img[m], ref[m]
+    return float(np.mean((x - r) ** 2 / (r * r + eps)))
+
+
+def smape(image, reference, mask=None, eps: float = EPS_SMAPE) -> float:
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return math.nan
+    x, r = img[m], ref[m]
+    return float(np.mean(np.abs(x - r) / (np.abs(x) + np.abs(r) + eps)))
+
+
+# ---------------------------------------------------------------------------- display transforms
+def tonemap_scale(reference, mask=None) -> float:
+    """Exposure s mapping the reference's P99 (max RGB channel, covered pixels > 0) to 1."""
+    ref = _as_rgb(reference, "reference")
+    m = _as_mask(mask, ref.shape)
+    peak = ref.max(axis=2)
+    lit = peak[m & (peak > 0)]
+    if lit.size == 0:
+        return 1.0
+    p = float(np.percentile(lit, TONEMAP_PERCENTILE))
+    return 1.0 / p if p > 0 else 1.0
+
+
+def tonemap(x: np.ndarray, scale: float) -> np.ndarray:
+    """Linear radiance -> linear display RGB in [0, 1] (exposure `scale`, then clamp)."""
+    return np.clip(np.asarray(x, dtype=np.float64) * scale, 0.0, 1.0)
+
+
+def _check_scale(scale) -> float:
+    s = float(scale)
+    if not (math.isfinite(s) and s > 0):
+        raise ValueError(f"tonemap scale must be a positive finite number, got {scale!r}")
+    return s
+
+
+def _srgb_encode(linear: np.ndarray) -> np.ndarray:
+    import colour
+    return np.asarray(colour.cctf_encoding(linear, function="sRGB"), dtype=np.float64)
+
+
+def dssim(image, reference, mask=None, scale: float | None = None) -> float:
+    """1 - SSIM of sRGB-encoded luminance of the tone-mapped images, averaged over the mask."""
+    from skimage.metrics import structural_similarity
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return math.nan
+    h, w = m.shape
+    if min(h, w) < SSIM_WINDOW:
+        raise ValueError(f"dssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {w}x{h}")
+    s = tonemap_scale(ref, m) if scale is None else _check_scale(scale)
+    img, ref = _black_outside(img, m), _black_outside(ref, m)
+    y_img = _srgb_encode(tonemap(img, s) @ LUMA)
+    y_ref = _srgb_encode(tonemap(ref, s) @ LUMA)
+    _, ssim_map = structural_similarity(y_ref, y_img, win_size=SSIM_WINDOW, data_range=1.0, full=True)
+    return float(1.0 - np.mean(ssim_map[m]))
+
+
+def _lab(linear_display: np.ndarray) -> np.ndarray:
+    import colour
+    srgb = colour.RGB_COLOURSPACES["sRGB"]
+    xyz = colour.RGB_to_XYZ(linear_display, srgb, apply_cctf_decoding=False)
+    return colour.XYZ_to_Lab(xyz, srgb.whitepoint)
+
+
+def ciede2000(image, reference, mask=None, scale: float | None = None) -> float:
+    """Mean CIEDE2000 over the mask between the tone-mapped images (CIE Lab, D65)."""
+    import colour
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return math.nan
+    s = tonemap_scale(ref, m) if scale is None else _check_scale(scale)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # colour's domain-range notices are not about our data
+        lab_img = _lab(tonemap(img[m], s))
+        lab_ref = _lab(tonemap(ref[m], s))
+        de = colour.delta_E(lab_ref, lab_img, method="CIE 2000")
+    return float(np.mean(de))
+
+
+# ---------------------------------------------------------------------------- HDR-FLIP
+def _flip_x_max() -> float:
+    """The radiance the ACES curve (FLIP's coefficients) maps to 0.85: FLIP's automatic exposure anchor."""
+    a, b, c, d, e, f = 0.6 * 0.6 * 2.51, 0.6 * 0.03, 0.0, 0.6 * 0.6 * 2.43, 0.6 * 0.59, 0.14
+    t = 0.85
+    qa, qb, qc = a - t * d, b - t * e, c - t * f
+    return (-qb + math.sqrt(qb * qb - 4.0 * qa * qc)) / (2.0 * qa)
+
+
+_MIN_EXPOSURE_SPAN = 1e-3  # FLIP aborts the process on start >= stop, so a uniform reference gets this span
+
+
+def flip_exposure_range(reference, mask=None) -> tuple[float, float]:
+    """(start, stop) exposures of HDR-FLIP for one reference, shared by every method judged on it.
+
+    FLIP's rule (start = log2(x_max / Y_max), stop = log2(x_max / Y_median)) over the covered
+    pixels of positive luminance; an all-zero reference behaves as a unit-luminance one.
+    """
+    ref = _as_rgb(reference, "reference")
+    m = _as_mask(mask, ref.shape)
+    lum = np.clip(ref, 0.0, None) @ LUMA
+    lit = lum[m & (lum > 0)]
+    y_max, y_med = (float(lit.max()), float(np.median(lit))) if lit.size else (1.0, 1.0)
+    x_max = _flip_x_max()
+    start, stop = math.log2(x_max / y_max), math.log2(x_max / y_med)
+    return start, max(stop, start + _MIN_EXPOSURE_SPAN)
+
+
+def _check_exposure(exposure) -> tuple[float, float]:
+    try:
+        start, stop = (float(v) for v in exposure)
+    except (TypeError, ValueError):
+        raise ValueError(f"flip_exposure must be a (start, stop) pair, got {exposure!r}") from None
+    if not (math.isfinite(start) and math.isfinite(stop) and start < stop):
+        raise ValueError(f"flip_exposure must be finite with start < stop, got ({start}, {stop})")
+    return start, stop
+
+
+def weighted_median(values: np.ndarray) -> float:
+    """FLIP's weighted median: the smallest value v with sum(values <= v) > half the total (0 if all 0)."""
+    v = np.sort(np.asarray(values, dtype=np.float64).ravel())
+    total = v.sum()
+    if v.size == 0 or total <= 0:
+        return 0.0
+    idx = int(np.searchsorted(np.cumsum(v), 0.5 * total, side="right"))
+    return float(v[min(idx, v.size - 1)])
+
+
+def flip_error_map(image, reference, mask=None, exposure: tuple | None = None) -> np.ndarray:
+    """The HxW HDR-FLIP error map (values in [0, 1]); negative radiance is clamped to 0."""
+    import flip_evaluator
+    img, ref, m = _inputs(image, reference, mask)
+    start, stop = _check_exposure(flip_exposure_range(ref, m) if exposure is None else exposure)
+    img, ref = _black_outside(img, m), _black_outside(ref, m)
+    params = {"ppd": FLIP_PPD, "startExposure": start, "stopExposure": stop,
+              "numExposures": max(2, math.ceil(stop - start)), "tonemapper": FLIP_TONEMAPPER}
+    ref32 = np.ascontiguousarray(np.clip(ref, 0.0, None), dtype=np.float32)
+    img32 = np.ascontiguousarray(np.clip(img, 0.0, None), dtype=np.float32)
+    err, _, _ = flip_evaluator.evaluate(ref32, img32, "HDR", applyMagma=False, computeMeanError=False,
+                                        parameters=params)
+    return np.asarray(err, dtype=np.float64).reshape(m.shape)
+
+
+def flip(image, reference, mask=None, exposure: tuple | None = None) -> tuple[float, float]:
+    """(mean, error-weighted median) of the HDR-FLIP map over the mask."""
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return math.nan, math.nan
+    err = flip_error_map(img, ref, m, exposure)[m]
+    return float(err.mean()), weighted_median(err)
+
+
+# ---------------------------------------------------------------------------- all at once
+def compute_all(image, reference, mask=None, flip_exposure: tuple | None = None,
+                tonemap_scale_value: float | None = None) -> dict:
+    """Every metric of METRICS, keyed by name. `flip_exposure` and `tonemap_scale_value` default
+    to the reference's own (`flip_exposure_range`, `tonemap_scale`)."""
+    img, ref, m = _inputs(image, reference, mask)
+    if not m.any():
+        return {name: math.nan for name in METRICS}
+    s = tonemap_scale(ref, m) if tonemap_scale_value is None else _check_scale(tonemap_scale_value)
+    f_mean, f_median = flip(img, ref, m, flip_exposure)
+    out = {"mse": mse(img, ref, m), "relmse": relmse(img, ref, m), "smape": smape(img, ref, m),
+           "dssim": dssim(img, ref, m, scale=s), "flip_mean": f_mean, "flip_median": f_median,
+           "ciede2000": ciede2000(img, ref, m, scale=s)}
+    return {name: out[name] for name in METRICS}

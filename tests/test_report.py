@@ -1,0 +1,239 @@
+"""The HTML report: built from a tiny real run, with and without (synthesized) references, and
+driven in headless Chromium (Playwright): images and plots render, the wipe slider and the
+exposure change the canvas, no console errors; a screenshot goes to test-output/report.png."""
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bench import results as store
+from bench.imageio import read_exr, write_exr
+from reports import build_report
+from reports.build import error_scales, fmt
+
+CHROMIUM = Path("/usr/bin/chromium")
+SCREENSHOT = Path(__file__).resolve().parents[1] / "test-output" / "report.png"
+REF_COMPONENTS = ("direct", "indirect_unshadowed", "indirect_visible")
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tmp_path_factory):
+    """A real run: cornell_spot, direct + manylights, 48x36, no references."""
+    from bench.runner import RunConfig, run
+    out = tmp_path_factory.mktemp("run")
+    run(RunConfig(scenes=["cornell_spot"], methods=["direct", "manylights"], width=48, height=36, frames=2,
+                  warmup=1, references=False, progress=False, out=out), log=lambda m: None)
+    return out
+
+
+def _mse(a, b):
+    return float(np.mean((a - b) ** 2))
+
+
+@pytest.fixture(scope="module")
+def run_with_refs(tiny_run, tmp_path_factory):
+    """A copy of the tiny run with synthesized references, error columns and convergence curves
+    (the references are the manylights images, rescaled, so every method has a non-zero error)."""
+    out = tmp_path_factory.mktemp("run_refs")
+    shutil.copytree(tiny_run, out, dirs_exist_ok=True)
+    shutil.rmtree(out / "report", ignore_errors=True)
+    df = store.load_results(out)
+    ml = out / df.loc[df["method"] == "manylights", "image_dir"].iloc[0]
+    direct, indirect = read_exr(ml / "direct.exr"), read_exr(ml / "indirect.exr")
+    refs = {"direct": direct, "indirect_unshadowed": indirect * 1.2, "indirect_visible": indirect * 0.8}
+    ref_dir = out / "references" / "cornell_spot" / "main"
+    for comp, img in refs.items():
+        write_exr(ref_dir / f"{comp}.exr", img)
+        write_exr(ref_dir / f"{comp}_variance.exr", np.full_like(img, 1e-4))
+    rows = []
+    for rec in df.to_dict("records"):
+        img_dir = out / rec["image_dir"]
+        imgs = {c: read_exr(img_dir / f"{c}.exr") for c in ("direct", "indirect", "combined")}
+        rec["mse.indirect"] = _mse(imgs["indirect"], refs["indirect_unshadowed"])
+        rec["mse.indirect_visible"] = _mse(imgs["indirect"], refs["indirect_visible"])
+        rec["mse.combined"] = _mse(imgs["combined"], refs["direct"] + refs["indirect_visible"])
+        rec["relmse.indirect"] = rec["mse.indirect"] / (float(np.mean(refs["indirect_unshadowed"] ** 2)) + 1e-2)
+        for comp in REF_COMPONENTS:
+            rec[f"reference_noise_floor.{comp}"] = 1e-4 / 64
+            rec[f"reference_spp.{comp}"] = 64
+            rec[f"reference_key.{comp}"] = f"synthetic-{comp}"
+        rows.append(rec)
+    rows.append({"scene": "cornell_spot", "view": "main", "method": "flc", "params": "{}", "seed": 0,
+                 "width": 48, "height": 36, "status": "failed: method 'flc' failed to load"})
+    store.save_results(out, rows)
+    base = max(r.get("mse.indirect", 0.0) for r in rows)
+    curve = [{"spp": s, "seconds": 0.05 * s, "mse_estimate": base * 4.0 / s} for s in (1, 4, 16, 64)]
+    (out / "reference_curves.json").write_text(json.dumps(
+        {f"cornell_spot/main/{c}": curve for c in REF_COMPONENTS}))
+    return out
+
+
+def test_report_without_references(tiny_run, tmp_path):
+    index = build_report(tiny_run, tmp_path / "rep")
+    page = index.read_text()
+    assert index.name == "index.html" and (tmp_path / "rep" / "assets" / "viewer.js").is_file()
+    assert "manylights" in page and "cornell_spot" in page
+    assert "llvmpipe" in page  # machine info from the manifest
+    assert re.search(r"<(link|script)[^>]+(https?:)?//", page) is None  # offline: nothing from the network
+    # no reference: errors are missing, never zero, and no speed-up is claimed
+    assert "speed-ups unavailable" in page and "No Mitsuba references" in page
+    data = (tmp_path / "rep" / "data" / "view_0.js").read_text()
+    view = json.loads(data.split("] = ", 1)[1].rstrip(";\n"))
+    assert view["width"] == 48 and view["height"] == 36
+    assert all(c["reference"] is None for c in view["components"].values())
+    assert list((tmp_path / "rep" / "plots").glob("stages_*.svg"))
+
+
+def test_report_with_references(run_with_refs):
+    index = build_report(run_with_refs)
+    assert index == run_with_refs / "report" / "index.html"
+    page = index.read_text()
+    assert "Equal-error speed-up" in page and "Pareto front" in page
+    assert "<option value='relmse.indirect' selected>" in page
+    assert "Rows not rendered" in page and "failed: method &#x27;flc&#x27; failed to load" in page
+    assert (run_with_refs / "report" / "plots" / "time_error_0.svg").is_file()
+    view = json.loads((run_with_refs / "report" / "data" / "view_0.js").read_text().split("] = ", 1)[1].rstrip(";\n"))
+    ind = view["components"]["indirect"]
+    assert ind["reference"] == "ref_unshadowed" and ind["scale"]["abs"] > 0
+    assert [s["kind"] for s in ind["sources"]].count("method") == 2
+    # both methods share the direct pass: their direct image (= the synthetic direct reference) is stored once
+    direct_blobs = {s["blob"] for s in view["components"]["direct"]["sources"]}
+    assert len(direct_blobs) == 1 and len(view["components"]["direct"]["sources"]) == 3
+    # float16 payload round-trips the linear image
+    import base64
+    src = next(s for s in ind["sources"] if s["id"] == "ref_unshadowed")
+    got = np.frombuffer(base64.b64decode(view["blobs"][src["blob"]]), "<f2").astype(np.float32).reshape(36, 48, 3)
+    want = read_exr(run_with_refs / "references" / "cornell_spot" / "main" / "indirect_unshadowed.exr")
+    np.testing.assert_allclose(got, want, rtol=2e-3, atol=1e-6)
+
+
+def test_error_scale_is_shared_and_fmt_marks_missing():
+    ref = np.ones((4, 4, 3), np.float32)
+    a, b = ref * 1.5, ref * 3.0
+    scales, eps = error_scales(ref, [a, b])
+    assert scales["abs"] == pytest.approx(2.0, rel=1e-5)  # the worse method sets the shared scale
+    assert scales["rel"] == pytest.approx(2.0 / (1 + eps), rel=1e-5)
+    zero_scales, _ = error_scales(ref, [a, np.zeros_like(ref)])  # an all-zero image does not set the scale
+    assert zero_scales["abs"] == pytest.approx(0.5, rel=1e-5)
+    assert fmt(float("nan")) == "\u2014" and fmt(None) == "\u2014" and fmt(0.0) == "0"
+
+
+def test_report_rejects_a_missing_run(tmp_path):
+    with pytest.raises(FileNotFoundError, match="nope"):
+        build_report(tmp_path / "nope")
+
+
+def test_cli_report(tiny_run, tmp_path, capsys):
+    from bench.cli import main
+    assert main(["report", str(tiny_run), "--out", str(tmp_path / "r")]) == 0
+    assert (tmp_path / "r" / "index.html").is_file()
+    assert "report:" in capsys.readouterr().out
+
+
+CANVAS_STATS = """(sel) => {
+  const c = document.querySelector(sel);
+  const d = c.getContext('2d').getImageData(0, 0, c.width, c.height).data;
+  let sum = 0, lit = 0;
+  for (let i = 0; i < d.length; i += 4) { const v = d[i] + d[i+1] + d[i+2]; sum += v; if (v > 30) lit++; }
+  return {w: c.width, h: c.height, sum: sum, lit: lit, hash: Array.from(d.filter((_, i) => i % 97 == 0)).join(',')};
+}"""
+
+
+def _set_range(page, selector, value):
+    page.eval_on_selector(selector, "(e, v) => { e.value = v; e.dispatchEvent(new Event('input', {bubbles: true})); }",
+                          str(value))
+
+
+@pytest.mark.browser
+def test_report_in_browser(run_with_refs):
+    if not CHROMIUM.is_file():
+        pytest.skip("chromium not installed (/usr/bin/chromium)")
+    from playwright.sync_api import sync_playwright
+    index = build_report(run_with_refs)
+    errors = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=[
+            "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync"])
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 1500})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(index.as_uri())
+            page.wait_for_function("window.GIBENCH && window.GIBENCH.ready === true", timeout=20000)
+            assert page.evaluate("GIBENCH.viewers.length") == 1
+
+            before = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            assert before["w"] >= 48 and before["lit"] > 0.05 * before["w"] * before["h"]  # not blank
+            thumbs = page.eval_on_selector_all("figure.thumb canvas", "cs => cs.length")
+            assert thumbs == 2
+
+            # every plot image loaded
+            sizes = page.eval_on_selector_all("img.plot", "imgs => imgs.map(i => i.complete ? i.naturalWidth : 0)")
+            assert len(sizes) >= 2 and all(s > 0 for s in sizes)
+
+            # the wipe slider changes the displayed image (A = reference, B = a method)
+            page.select_option(".viewer select.sel-b", label="direct")
+            _set_range(page, ".viewer input.wipe", 1000)
+            only_a = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            _set_range(page, ".viewer input.wipe", 0)
+            only_b = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            assert only_a["hash"] != only_b["hash"] and only_a["sum"] != only_b["sum"]
+
+            # exposure: one stop up brightens
+            ev = float(page.eval_on_selector(".viewer input.exposure", "e => e.value"))
+            _set_range(page, ".viewer input.exposure", ev + 1)
+            brighter = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            assert brighter["sum"] > only_b["sum"]
+
+            # wheel zooms about the cursor, drag pans, double-click resets
+            box = page.locator("canvas.view-canvas").bounding_box()
+            cx, cy = box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.4
+            page.mouse.move(cx, cy)
+            page.mouse.wheel(0, -400)
+            page.wait_for_function("GIBENCH.viewers[0].zoom > 1")
+            zoomed = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            assert zoomed["hash"] != brighter["hash"]
+            page.mouse.down()
+            page.mouse.move(cx + 60, cy + 40, steps=4)
+            page.mouse.up()
+            panned = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            assert panned["hash"] != zoomed["hash"]
+            page.dblclick("canvas.view-canvas")
+            assert page.evaluate(CANVAS_STATS, "canvas.view-canvas")["hash"] == brighter["hash"]
+
+            # the error map view of the indirect component
+            page.click(".viewer button[data-component='indirect']")
+            page.select_option(".viewer select.sel-mode", "abs")
+            _set_range(page, ".viewer input.wipe", 500)
+            err = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+            assert err["hash"] != brighter["hash"]
+            assert page.eval_on_selector(".legend", "e => getComputedStyle(e).visibility") == "visible"
+
+            # the metric select switches the overview table
+            page.select_option("select.metric-select", "mse.combined")
+            assert page.eval_on_selector("[data-metric='mse.combined']", "e => !e.hidden")
+            assert page.eval_on_selector("[data-metric='relmse.indirect']", "e => e.hidden")
+
+            # back to the combined image for the screenshot
+            page.click(".viewer button[data-component='combined']")
+            page.select_option(".viewer select.sel-mode", "image")
+            page.select_option(".viewer select.sel-b", label="manylights")
+            SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+            page.screenshot(path=str(SCREENSHOT), full_page=True)
+        finally:
+            browser.close()
+    assert not errors, errors
+    assert SCREENSHOT.stat().st_size > 10000
+
+
+def test_report_of_a_run_where_nothing_rendered(tmp_path):
+    store.save_results(tmp_path, [{"scene": "cornell_spot", "view": "main", "method": "flc", "params": "{}", "seed": 0,
+                                   "status": "failed: method 'flc' failed to load"}])
+    page = build_report(tmp_path).read_text()
+    assert "No rendered rows" in page and "Rows not rendered" in page
