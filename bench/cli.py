@@ -126,7 +126,8 @@ def cmd_sweep(args) -> int:
 def cmd_gate(args) -> int:
     from bench.gate import compare_runs
     result = compare_runs(Path(args.baseline), Path(args.candidate), time_threshold=args.time_threshold,
-                          error_threshold=args.error_threshold, alpha=args.alpha)
+                          error_threshold=args.error_threshold, alpha=args.alpha,
+                          compare_changed_versions=args.compare_changed_versions)
     print(result.markdown())
     return result.exit_code
 
@@ -191,6 +192,8 @@ def main(argv=None) -> int:
     p.add_argument("--time-threshold", type=float, default=0.10)
     p.add_argument("--error-threshold", type=float, default=0.05)
     p.add_argument("--alpha", type=float, default=0.05)
+    p.add_argument("--compare-changed-versions", action="store_true",
+                   help="also compare rows whose method version changed (a PR editing a method), marked 'method changed'")
     p.set_defaults(func=cmd_gate)
 
     p = sub.add_parser("reference", help="Mitsuba references")

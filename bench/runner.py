@@ -368,21 +368,33 @@ def _json_default(o):
 
 
 class ReferenceProvider:
-    """Fetches (or builds) the Mitsuba references of each view once and adds error columns.
+    """Fetches (or builds) the Mitsuba references of each view and adds error columns.
 
-    Without Mitsuba the run goes on: error columns stay empty (NaN), never zero, and the reason
-    is logged once.
+    Two passes. `evaluate()` (per row) uses a first-pass reference of at most
+    REFERENCE_FIRST_PASS_SPP samples per pixel (or the cap, if lower). `finish()` then refines,
+    for each view, every component whose noise floor is above 1/10 of the best method's MSE
+    against it (bounded by `reference_spp_cap`; the cache continues from the first pass) and
+    re-evaluates that view's rows. Each row records the key, spp and noise floor of the
+    references it was judged against. Without Mitsuba the run goes on: error columns stay
+    empty (NaN), never zero, and the reason is logged once.
     """
+
+    COMPONENTS = ("direct", "indirect_unshadowed", "indirect_visible")
+    # which method image each reference component judges (bench.evaluation.COMPARISONS)
+    JUDGES = {"direct": "direct", "indirect_unshadowed": "indirect", "indirect_visible": "indirect"}
+    REFERENCE_FIRST_PASS_SPP = 64
+    TARGET_FRACTION = 0.1
 
     def __init__(self, run_dir: Path, cfg: RunConfig, log):
         self.run_dir, self.cfg, self.log = run_dir, cfg, log
         self._refs: dict = {}
         self._unavailable: str | None = None
         self._curves: dict = {}
+        self._rows: dict = {}     # (scene name, view) -> [(row, scene)]
 
-    def _reference(self, scene, view: str, component: str):
+    def _reference(self, scene, view: str, component: str, target_mse: float | None = None):
         key = (scene.name, view, component)
-        if key in self._refs:
+        if key in self._refs and target_mse is None:
             return self._refs[key]
         ref = None
         if self._unavailable is None:
@@ -393,23 +405,29 @@ class ReferenceProvider:
                 self.log(f"gibench: {self._unavailable}; error columns left empty")
                 self._refs[key] = None
                 return None
+            cap = int(self.cfg.reference_spp_cap)
+            if target_mse is None:
+                cap = min(cap, self.REFERENCE_FIRST_PASS_SPP)
             try:
                 ref = get_reference(scene, view, self.cfg.width, self.cfg.height, component,
-                                    spp_cap=self.cfg.reference_spp_cap)
+                                    spp_cap=max(cap, 2), target_mse=target_mse)
             except ReferenceUnavailable as exc:
                 self._unavailable = str(exc)
                 self.log(f"gibench: {exc}; error columns left empty")
+            except Exception as exc:  # a reference that fails leaves this view's columns empty
+                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                self.log(f"gibench: reference {scene.name}/{view}/{component} failed: {reason}")
             if ref is not None:
                 out = self.run_dir / "references" / scene.name / view
                 write_exr(out / f"{component}.exr", ref.mean)
                 write_exr(out / f"{component}_variance.exr", ref.variance)
                 self._curves[f"{scene.name}/{view}/{component}"] = ref.curve
-        self._refs[key] = ref
+        if ref is not None or key not in self._refs:  # a failed refinement keeps the first pass
+            self._refs[key] = ref
         return ref
 
-    def evaluate(self, row: dict, scene, view: str) -> None:
+    def _apply(self, row: dict, refs: dict) -> None:
         from bench.evaluation import evaluate_row
-        refs = {c: self._reference(scene, view, c) for c in ("direct", "indirect_unshadowed", "indirect_visible")}
         for comp, ref in refs.items():
             if ref is not None:
                 row[f"reference_key.{comp}"] = ref.key
@@ -421,7 +439,62 @@ class ReferenceProvider:
         images = {c: read_exr(image_dir / f"{c}.exr") for c in IMAGE_COMPONENTS}
         row.update(evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()}))
 
+    def evaluate(self, row: dict, scene, view: str) -> None:
+        if not str(row.get("status", "")).startswith(("ok", "cached")):
+            return  # skipped rows have no images to judge
+        refs = {c: self._reference(scene, view, c) for c in self.COMPONENTS}
+        self._rows.setdefault((scene.name, view), []).append((row, scene))
+        self._apply(row, refs)
+
+    @staticmethod
+    def _mse(image: np.ndarray, ref) -> float:
+        mask = ref.coverage
+        if not mask.any():
+            return float("nan")
+        return float(((image.astype(np.float64) - ref.mean) ** 2)[mask].mean())
+
+    def refine(self) -> None:
+        """Second pass: bring each view's references below 1/10 of the best method's MSE.
+
+        A method's MSE against a noisy reference overestimates its true MSE by the reference's
+        noise floor (E[(x - r)^2] = (x - mu)^2 + Var r), so the floor is subtracted before the
+        target is set, and the target is re-estimated after each refinement (at most 4 times).
+        """
+        if self._unavailable is not None:
+            return
+        for (scene_name, view), rows in self._rows.items():
+            scene = rows[0][1]
+            refs = {c: self._refs.get((scene_name, view, c)) for c in self.COMPONENTS}
+            images: dict = {}
+            for row, _ in rows:
+                for name in set(self.JUDGES.values()):
+                    path = self.run_dir / row["image_dir"] / f"{name}.exr"
+                    if path.is_file():
+                        images.setdefault(name, []).append(read_exr(path))
+            changed = False
+            for comp in self.COMPONENTS:
+                for _ in range(4):
+                    ref = refs[comp]
+                    if ref is None or ref.noise_floor_mse == 0.0 or ref.spp >= self.cfg.reference_spp_cap:
+                        break
+                    errors = [self._mse(img, ref) - ref.noise_floor_mse for img in images.get(self.JUDGES[comp], [])]
+                    errors = [e for e in errors if np.isfinite(e)]
+                    if not errors:
+                        break
+                    target = self.TARGET_FRACTION * max(min(errors), 0.0)
+                    if ref.noise_floor_mse <= target:
+                        break
+                    refined = self._reference(scene, view, comp, target_mse=target)
+                    if refined is None or refined.spp == ref.spp:
+                        break
+                    refs[comp] = refined
+                    changed = True
+            if changed:
+                for row, _ in rows:
+                    self._apply(row, refs)
+
     def finish(self) -> None:
+        self.refine()
         if self._curves:
             store.atomic_write_text(self.run_dir / "reference_curves.json", json.dumps(self._curves, default=_json_default))
 
