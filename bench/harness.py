@@ -27,6 +27,7 @@ class RenderResult:
     skipped_stages: tuple = ()
     params: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
+    stage_clock: str = ""                               # how stage_ms were measured (profiler.CLOCKS)
 
     @property
     def combined(self) -> np.ndarray:
@@ -64,7 +65,7 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
         method.prepare(gpu, scene, facts, params, view)
         check_gl(ctx, f"method '{method_cls.name}' prepare")
         prof = StageProfiler(ctx, passes.stages + tuple(method_cls.stages))
-        result = RenderResult(direct=None, indirect=None, params=params)
+        result = RenderResult(direct=None, indirect=None, params=params, stage_clock=prof.clock)
         skipped: set = set()
         for index in range(warmup + frames):
             prof.begin_frame()

@@ -77,7 +77,9 @@ def machine_info(ctx) -> dict:
                 break
     except OSError:
         pass
+    from bench.gl.profiler import default_clock
     info = gl_info(ctx)
+    info["stage_clock"] = default_clock(ctx)
     info.update({"cpu": cpu, "cores": os.cpu_count(), "python": sys.version.split()[0],
                  "platform": platform.platform()})
     return info
@@ -94,11 +96,12 @@ def package_versions() -> dict:
     return out
 
 
-def row_cache_key(scene, camera: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str) -> str:
+def row_cache_key(scene, camera: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str,
+                  stage_clock: str = "") -> str:
     payload = {"scene": scene.content_hash(), "camera": camera, "camera_def": scene.cameras[camera].to_dict(),
                "method": method, "method_version": version, "params": params, "width": cfg.width,
                "height": cfg.height, "frames": cfg.frames, "warmup": cfg.warmup, "seed": cfg.seed,
-               "shadow_resolution": cfg.shadow_resolution, "renderer": renderer}
+               "shadow_resolution": cfg.shadow_resolution, "renderer": renderer, "stage_clock": stage_clock}
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
@@ -250,7 +253,8 @@ class Runner:
             return self._failed(row, exc)
         row["params"] = store.params_json(params)
         row["method_version"] = version
-        key = row_cache_key(scene, view, method_name, version, params, cfg, renderer)
+        from bench.gl.profiler import default_clock
+        key = row_cache_key(scene, view, method_name, version, params, cfg, renderer, default_clock(ctx))
         row["row_key"] = key
         image_dir = self.run_dir / "images" / scene.name / view / self._image_folder(method_name, params, cls)
         row["image_dir"] = str(image_dir.relative_to(self.run_dir))
@@ -296,6 +300,7 @@ class Runner:
         for stage in result.skipped_stages:
             row.setdefault(f"stage_ms.{stage}", float("nan"))
         row["gpu_ms"] = gpu_total
+        row["stage_clock"] = result.stage_clock
         for k, v in result.extra.items():
             if isinstance(v, (int, float, str, bool)):
                 row[f"extra.{k}"] = v

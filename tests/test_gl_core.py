@@ -110,3 +110,38 @@ def test_directional_light(gl_ctx):
     assert np.allclose(img[..., 0][inner], expected, rtol=1e-5)
     shade = floor & (np.abs(p[..., 0]) < 0.2) & (np.abs(p[..., 2] + 0.5) < 0.2)
     assert shade.sum() > 5 and np.all(img[..., 0][shade] == 0)
+
+
+def test_stage_clock_choice_and_override(gl_ctx, monkeypatch):
+    from bench.gl.profiler import StageProfiler, default_clock
+    monkeypatch.delenv("GIBENCH_STAGE_CLOCK", raising=False)
+    software = "llvmpipe" in gl_ctx.info["GL_RENDERER"].lower()
+    assert default_clock(gl_ctx) == ("finish_wall" if software else "gl_query")
+    monkeypatch.setenv("GIBENCH_STAGE_CLOCK", "gl_query")
+    assert StageProfiler(gl_ctx).clock == "gl_query"
+    monkeypatch.setenv("GIBENCH_STAGE_CLOCK", "stopwatch")
+    with pytest.raises(ValueError, match="GIBENCH_STAGE_CLOCK"):
+        default_clock(gl_ctx)
+
+
+@pytest.mark.parametrize("clock", ["gl_query", "finish_wall"])
+def test_both_stage_clocks_time_a_pass(gl_ctx, open_box, clock):
+    from bench.gl import GpuScene, SharedPasses
+    from bench.gl.profiler import StageProfiler
+    gpu = GpuScene(gl_ctx, open_box)
+    view = gpu.view("main", 64, 48)
+    passes = SharedPasses(gpu, view, {"gbuffer", "shadow_map", "direct"}, shadow_resolution=256)
+    prof = StageProfiler(gl_ctx, passes.stages, clock=clock)
+    try:
+        prof.begin_frame()
+        passes.render(prof)
+        times = prof.collect()
+        assert set(times) == set(passes.stages)
+        assert all(ms > 0 for ms in times.values())
+        with pytest.raises(RuntimeError, match="cannot nest"):
+            with prof.stage(passes.stages[0]):
+                with prof.stage(passes.stages[0]):
+                    pass
+    finally:
+        passes.release()
+        gpu.release()

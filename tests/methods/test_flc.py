@@ -1,0 +1,279 @@
+"""Forward Light Cuts (`flc`): the level/partition maths, its GLSL mirror, unbiasedness against
+`manylights`, the divergent pipeline, interleaved sampling, determinism and robustness."""
+import dataclasses
+
+import numpy as np
+import pytest
+
+from bench.harness import run_method
+from bench.method import ParamError
+from methods.flc.levels import FlcLevels
+from methods.flc.method import SHADERS, ForwardLightCuts
+from methods.manylights.method import ManyLights
+from tests.conftest import make_grid_box, make_open_box
+
+CONFIGS = [dict(n_avg=256, mu=4.0, levels=5), dict(n_avg=64, mu=1.4, levels=8), dict(n_avg=1024, mu=2.0, levels=1),
+           dict(n_avg=32, mu=5.0, levels=0)]
+EXACT = dict(tiling_level=0, blur_radius=0, last_level_unbounded=True)
+
+
+def rel_mse(a, b):
+    return float(((a - b) ** 2).mean() / (b ** 2).mean())
+
+
+# ---------------------------------------------------------------------------- maths (numpy)
+@pytest.mark.parametrize("cfg", CONFIGS)
+def test_partition_of_unity(cfg):
+    lv = FlcLevels(scene_radius=1.7, **cfg)
+    nodes = lv.d[: lv.levels + 1]
+    d = np.concatenate([np.geomspace(nodes[0] * 1e-4, nodes[-1], 5000), nodes, nodes * (1 - 1e-9)])
+    f = lv.partition(d)
+    assert f.min() >= 0.0 and f.max() <= 1.0
+    np.testing.assert_allclose(f.sum(axis=0), 1.0, atol=1e-12)
+    beyond = nodes[-1] * np.array([1.0 + 1e-9, 1.5, 1e3])
+    assert np.all(lv.partition(beyond) == 0.0)
+    unbounded = dataclasses.replace(lv, last_level_unbounded=True)
+    np.testing.assert_allclose(unbounded.partition(np.concatenate([d, beyond])).sum(axis=0), 1.0, atol=1e-12)
+
+
+def test_printed_eq16_is_not_a_partition_of_unity():
+    """The correction matters: eq. 16 as printed (f^0 = 1 on ]0, D_1]) sums to more than 1."""
+    lv = FlcLevels(scene_radius=1.0, n_avg=256, mu=4.0, levels=3)
+    d = 0.5 * (lv.d[0] + lv.d[1])
+    f = lv.partition(np.array([d]))[:, 0]
+    printed = f.copy()
+    printed[0] = 1.0
+    assert f.sum() == pytest.approx(1.0) and printed.sum() > 1.4
+
+
+@pytest.mark.parametrize("cfg", CONFIGS)
+def test_eq9_expectation_identity(cfg):
+    """sum_k F^k P(t in L^k) = A with F^k = S_k f^k and P = A / S_k, for d in ]0, D_N]."""
+    lv = FlcLevels(scene_radius=2.3, **cfg)
+    rng = np.random.default_rng(1)
+    area = rng.uniform(0.0, lv.divergent_area, 400)
+    d = rng.uniform(0.0, lv.d[lv.levels], 400) + 1e-12
+    p = lv.level_probabilities(area)                    # (400, N+1)
+    assert np.all(p.sum(-1) <= 1.0 + 1e-12)             # regular triangles: a valid distribution
+    expectation = (lv.s[None, :] * lv.partition(d).T * p).sum(-1)
+    np.testing.assert_allclose(expectation, area, rtol=1e-12)
+
+
+def test_alg1_level_frequencies_are_area_over_s_k():
+    """Eq. 3 correction: Alg. 1 puts a triangle in level k with probability A / S_k, not A / S_bar_k."""
+    lv = FlcLevels(scene_radius=1.0, n_avg=64, mu=2.0, levels=3)
+    area = 0.9 * lv.divergent_area
+    u = np.random.default_rng(2).random(400_000)
+    level = lv.level_of(u, np.full_like(u, area))
+    freq = np.array([(level == k).mean() for k in range(lv.levels + 1)])
+    expected = area / lv.s
+    np.testing.assert_allclose(freq, expected, atol=4e-3)
+    assert abs(freq[1] - area / lv.s_bar[1]) > 0.1  # the cumulative (printed) one is far off
+    assert (level == -1).mean() == pytest.approx(1 - expected.sum(), abs=4e-3)
+    assert np.all(lv.level_of(u[:1000], np.zeros(1000)) == -1)  # zero area: never a VPL
+
+
+def test_same_number_of_vpls_reach_a_receiver_from_every_level():
+    for mu in (1.4, 3.0, 5.0):
+        lv = FlcLevels(scene_radius=1.0, n_avg=256, mu=mu, levels=6)
+        n = lv.expected_vpls_reaching()
+        interior = n[1:-1]
+        np.testing.assert_allclose(interior, interior[0], rtol=1e-3)
+        assert interior[0] < n[0] <= 4 * interior[0]          # f^0 = 1 down to d = 0
+        assert 0.15 * interior[0] <= n[-1] < 0.5 * interior[0]  # f^N: rising ramp only
+
+
+def test_glsl_partition_matches_numpy(gl_ctx):
+    from bench.gl.shaders import GLSL_VERSION, define_block, expand_includes
+    lv = FlcLevels(scene_radius=1.3, n_avg=128, mu=2.5, levels=4, last_level_unbounded=True)
+    d = np.concatenate([np.geomspace(lv.d[0] * 1e-3, lv.d[-1] * 3, 997), lv.d * 1.0001]).astype(np.float32)
+    body = """
+    layout(local_size_x = 64) in;
+    layout(std430, binding = 5) readonly buffer In { float dist[]; };
+    layout(std430, binding = 6) writeonly buffer Out { float f[]; };
+    uniform int u_count;
+    void main() {
+        int i = int(gl_GlobalInvocationID.x);
+        if (i >= u_count) return;
+        for (int k = 0; k <= FLC_N; ++k) f[i * (FLC_N + 1) + k] = flc_partition(k, dist[i]);
+    }
+    """
+    src = (GLSL_VERSION + "\n" + define_block(lv.defines()) + "#define COMPUTE_SHADER\n"
+           + expand_includes(SHADERS / "partition.glsl") + body)
+    cs = gl_ctx.compute_shader(src)
+    inp = gl_ctx.buffer(d.tobytes())
+    out = gl_ctx.buffer(reserve=len(d) * (lv.levels + 1) * 4)
+    try:
+        inp.bind_to_storage_buffer(5)
+        out.bind_to_storage_buffer(6)
+        cs["u_count"].value = len(d)
+        cs.run(group_x=(len(d) + 63) // 64)
+        gpu = np.frombuffer(out.read(), dtype=np.float32).reshape(len(d), lv.levels + 1).T
+    finally:
+        for obj in (cs, inp, out):
+            obj.release()
+    np.testing.assert_allclose(gpu, lv.partition(d.astype(np.float64)), atol=2e-5)
+
+
+def test_glsl_level_matches_numpy(gl_ctx):
+    from bench.gl.shaders import GLSL_VERSION, define_block, expand_includes
+    lv = FlcLevels(scene_radius=2.0, n_avg=64, mu=3.0, levels=4)
+    rng = np.random.default_rng(3)
+    u = rng.random(4096).astype(np.float32)
+    area = (rng.random(4096) * lv.divergent_area).astype(np.float32)
+    area[:16] = 0.0
+    body = """
+    layout(local_size_x = 64) in;
+    layout(std430, binding = 5) readonly buffer In { vec2 u_area[]; };
+    layout(std430, binding = 6) writeonly buffer Out { int level[]; };
+    void main() {
+        int i = int(gl_GlobalInvocationID.x);
+        level[i] = flc_level(u_area[i].x, u_area[i].y);
+    }
+    """
+    src = (GLSL_VERSION + "\n" + define_block(lv.defines()) + "#define COMPUTE_SHADER\n"
+           + expand_includes(SHADERS / "partition.glsl") + body)
+    cs = gl_ctx.compute_shader(src)
+    inp = gl_ctx.buffer(np.stack([u, area], 1).tobytes())
+    out = gl_ctx.buffer(reserve=len(u) * 4)
+    try:
+        inp.bind_to_storage_buffer(5)
+        out.bind_to_storage_buffer(6)
+        cs.run(group_x=len(u) // 64)
+        gpu = np.frombuffer(out.read(), dtype=np.int32)
+    finally:
+        for obj in (cs, inp, out):
+            obj.release()
+    expected = lv.level_of(u.astype(np.float64), area.astype(np.float64))
+    # float32 thresholds on the GPU: only draws within rounding of a threshold may differ
+    assert np.mean(gpu == expected) > 0.999
+    assert np.all(gpu[:16] == -1) and set(np.unique(gpu)) == set(range(-1, lv.levels + 1))
+
+
+# ---------------------------------------------------------------------------- rendering
+def test_progressive_converges_to_manylights(gl_ctx):
+    """Unbiasedness: progressive FLC (f^N unbounded, no tiling/blur) against the exact sum of
+    eq. 4 with eq. 6's lobe and the same VPL jitter. eps is large so the 1/d^2 singularity of
+    jittered VPLs near corners (infinite variance in both estimators) does not dominate."""
+    scene = make_grid_box(8)
+    params = dict(EXACT, n_avg=32, levels=2, mu=2.0, eps_rel=0.3)
+    errors = []
+    for frames in (16, 64, 256):
+        flc = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, dict(params, progressive_frames=frames),
+                         frames=1)
+        ml = run_method(gl_ctx, ManyLights, scene, "main", 48, 36,
+                        {"emission": "flc", "jitter_frames": frames, "eps_rel": 0.3}, frames=1)
+        errors.append(rel_mse(flc.indirect, ml.indirect))
+    assert flc.extra["divergent_triangles"] > 0  # both pipelines take part
+    assert errors[0] > errors[1] > errors[2]
+    assert errors[0] / errors[2] > 4.0  # ~1/frames (16x more frames)
+    assert errors[2] < 1e-3
+
+
+def _refined_big_floor():
+    """big_floor with its 4 huge triangles cut into <= 0.5 m edges: what `manylights` (one VPL per
+    triangle) needs to see the floor's lit spot; the surfaces and light are the same."""
+    import trimesh
+    from bench.corpus import load_scene
+    from bench.scene import Scene
+    scene = load_scene("big_floor")
+    big = scene.areas() > 1.0
+    v, f, idx = trimesh.remesh.subdivide_to_size(scene.vertices, scene.faces[big], max_edge=0.5, return_index=True)
+    fine = Scene.build("big_floor_fine", np.concatenate([scene.vertices, v]),
+                       np.concatenate([scene.faces[~big], f + len(scene.vertices)]),
+                       np.concatenate([scene.albedo[~big], scene.albedo[big][idx]]), scene.lights, scene.cameras)
+    return scene, fine
+
+
+def test_big_floor_needs_the_divergent_pass(gl_ctx):
+    scene, fine = _refined_big_floor()
+    reference = run_method(gl_ctx, ManyLights, fine, "main", 48, 36, {"emission": "flc"}, frames=1).indirect.mean()
+    params = dict(tiling_level=0, blur_radius=0, progressive_frames=64)
+    on = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, params, frames=1)
+    off = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, dict(params, divergent_pass=False), frames=1)
+    assert on.extra["divergent_triangles"] == 4 and "divergent" not in on.skipped_stages
+    assert "divergent" in off.skipped_stages
+    # without it the floor's bounce, nearly all the indirect light of the view, is lost
+    assert off.indirect.mean() < 0.1 * reference
+    # with it, agreement with the exact sum within the noise of 64 progressive frames
+    assert on.indirect.mean() == pytest.approx(reference, rel=0.15)
+
+
+def test_triangles_beyond_the_top_tessellation_level_are_presplit(gl_ctx):
+    """At n_avg = 4096 the open box's 2 m^2 triangles need more than tessellation level 64
+    (area / S_bar_N > 1 / fmax(64)): each is appended as 2 x 2 sub-patches, and the result still
+    agrees with the exact sum."""
+    scene = make_open_box()
+    params = dict(EXACT, n_avg=4096, levels=3, eps_rel=0.05, progressive_frames=16)
+    r = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, params, frames=1)
+    ml = run_method(gl_ctx, ManyLights, scene, "main", 48, 36, {"emission": "flc", "jitter_frames": 256, "eps_rel": 0.05},
+                    frames=1)
+    assert r.extra["divergent_triangles"] == 6
+    assert r.extra["divergent_patch_vertices"] == 6 * 4 * 3
+    assert rel_mse(r.indirect, ml.indirect) < 0.03
+
+
+def test_divergent_stage_skipped_when_no_triangle_is_divergent(gl_ctx):
+    r = run_method(gl_ctx, ForwardLightCuts, make_grid_box(8), "main", 32, 24, {"n_avg": 8}, frames=1)
+    assert r.extra["divergent_triangles"] == 0
+    assert r.skipped_stages == ("divergent",)
+    assert {"regular", "upscale_blur", "gbuffer_shadow"} <= set(r.stage_ms)
+    assert r.indirect.max() > 0
+
+
+def test_interleaved_sampling_keeps_the_expectation(gl_ctx):
+    scene = make_grid_box(6)
+    base = dict(EXACT, n_avg=16, levels=2, mu=2.0, eps_rel=0.3, progressive_frames=48)
+    means = {}
+    for level in (0, 2):
+        r = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, dict(base, tiling_level=level), frames=1)
+        means[level] = r.indirect.mean()
+    assert means[2] == pytest.approx(means[0], rel=0.05)
+
+
+def test_default_frame_is_finite_blurred_and_deterministic(gl_ctx):
+    scene = make_grid_box(6)
+    a = run_method(gl_ctx, ForwardLightCuts, scene, "main", 64, 48, {}, seed=5, frames=1)
+    b = run_method(gl_ctx, ForwardLightCuts, scene, "main", 64, 48, {}, seed=5, frames=1)
+    c = run_method(gl_ctx, ForwardLightCuts, scene, "main", 64, 48, {}, seed=6, frames=1)
+    assert np.array_equal(a.indirect, b.indirect)
+    assert not np.array_equal(a.indirect, c.indirect)
+    assert np.all(np.isfinite(a.indirect)) and a.indirect.max() > 0
+    assert set(a.stage_ms) >= {"regular", "divergent", "upscale_blur"}
+
+
+def test_zero_area_triangle_is_never_a_vpl(gl_ctx):
+    scene = make_grid_box(4)
+    # Scene.build drops degenerate triangles, so append one by hand (repeated vertex: area 0,
+    # its normal would be NaN and poison the image if it were ever splatted)
+    faces = np.concatenate([scene.faces, [[0, 0, 5]]])
+    albedo = np.concatenate([scene.albedo, [[1.0, 1.0, 1.0]]])
+    degenerate = dataclasses.replace(scene, faces=faces, albedo=albedo, _hash=None)
+    params = dict(n_avg=8, progressive_frames=8)
+    ref = run_method(gl_ctx, ForwardLightCuts, scene, "main", 32, 24, params, frames=1)
+    out = run_method(gl_ctx, ForwardLightCuts, degenerate, "main", 32, 24, params, frames=1)
+    assert np.array_equal(out.indirect, ref.indirect)
+
+
+@pytest.mark.parametrize("divergent", [False, True])
+def test_tiny_eps_gives_no_nan_or_inf(gl_ctx, divergent):
+    params = dict(eps_rel=1e-6, tiling_level=0, blur_radius=0, n_avg=256 if divergent else 8, last_level_unbounded=True)
+    r = run_method(gl_ctx, ForwardLightCuts, make_open_box() if divergent else make_grid_box(8), "main", 48, 36,
+                   params, frames=1)
+    assert np.all(np.isfinite(r.indirect)) and r.indirect.max() > 0
+
+
+def test_bad_parameter_is_named(gl_ctx):
+    with pytest.raises(ParamError, match="'mu'"):
+        run_method(gl_ctx, ForwardLightCuts, make_open_box(), "main", 16, 16, {"mu": 1.0}, frames=1)
+    with pytest.raises(ParamError, match="'tiling_level'"):
+        run_method(gl_ctx, ForwardLightCuts, make_open_box(), "main", 16, 16, {"tiling_level": 9}, frames=1)
+
+
+def test_energy_beyond_support_measurement(gl_ctx):
+    from methods.flc.analysis import energy_beyond_support
+    scene = make_grid_box(4)
+    shares = [energy_beyond_support(gl_ctx, scene, "main", 32, 24, {"mu": mu, "levels": n})["share_beyond_DN"]
+              for mu, n in ((2.0, 3), (4.0, 5), (16.0, 15))]
+    assert 0.0 < shares[1] < shares[0] <= 1.0
+    assert shares[2] < 1e-6  # D_N far beyond the scene: only (nearly) grazing pairs are cut
