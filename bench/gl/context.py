@@ -12,6 +12,19 @@ import moderngl
 GL_REQUIRED_VERSION = 450
 
 
+# Mesa's llvmpipe silently stops a shader invocation after 65535 loop iterations in total,
+# counting every loop of the invocation together (gallivm's loop limiter; measured: a loop of
+# 70000 runs 65535 times, and nested 256 x 256 loops run 65027). A shader loop over an
+# unbounded number of items (VPLs, triangles) is therefore split across draws of at most
+# LOOP_CHUNK items each, leaving head-room for the shader's other loops. Harmless on a GPU.
+LOOP_CHUNK = 16384
+
+
+def loop_chunks(count: int, chunk: int = LOOP_CHUNK):
+    """(first, end) item ranges of at most `chunk` items covering range(count)."""
+    return [(first, min(count, first + chunk)) for first in range(0, int(count), int(chunk))]
+
+
 class GLError(RuntimeError):
     """A GL error reported by glGetError after an operation."""
 

@@ -13,7 +13,7 @@ import moderngl
 import numpy as np
 
 from bench.gl import load_compute, load_program, set_uniforms
-from bench.gl.context import park
+from bench.gl.context import loop_chunks, park
 
 SHADERS = Path(__file__).parent / "shaders"
 
@@ -126,13 +126,19 @@ class VplGather:
         ctx = self.ctx
         self.fbo.use()
         ctx.viewport = (0, 0, self.width, self.height)
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        self.fbo.clear(0.0, 0.0, 0.0, 0.0)
+        ctx.disable(moderngl.DEPTH_TEST)
+        ctx.enable(moderngl.BLEND)  # additive: each draw sums one chunk of the VPLs
+        ctx.blend_func = moderngl.ONE, moderngl.ONE
         unit = gbuffer.bind(self.program)
         if bind_extra is not None:
             bind_extra(self.program, unit)
         sampler.bind()
-        set_uniforms(self.program, u_vpl_count=sampler.vpl_count, u_eps=float(eps))
-        self.vao.render(moderngl.TRIANGLES, vertices=3)
+        set_uniforms(self.program, u_eps=float(eps))
+        for first, end in loop_chunks(sampler.vpl_count):
+            set_uniforms(self.program, u_vpl_first=first, u_vpl_end=end)
+            self.vao.render(moderngl.TRIANGLES, vertices=3)
+        ctx.disable(moderngl.BLEND)
 
     def release(self) -> None:
         park(self.ctx)

@@ -33,6 +33,7 @@ import moderngl
 import numpy as np
 
 from bench.gl import load_compute, load_program, set_uniforms
+from bench.gl.context import loop_chunks
 from bench.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
@@ -104,9 +105,10 @@ class ManyLights(MethodBase):
                 passes.gbuffer.bind(self.gather)
                 self.vpls.bind_to_storage_buffer(VPL_DEFINES["BINDING_VPLS"])
                 gpu.bind_scene_buffers()
-                set_uniforms(self.gather, u_vpl_count=gpu.triangle_count, u_eps=self.eps,
-                             u_weight=1.0 / jitter_frames)
-                self.gather_vao.render(moderngl.TRIANGLES, vertices=3)
+                set_uniforms(self.gather, u_eps=self.eps, u_weight=1.0 / jitter_frames)
+                for first, end in loop_chunks(gpu.triangle_count):  # additive: partial sums add up
+                    set_uniforms(self.gather, u_vpl_first=first, u_vpl_end=end)
+                    self.gather_vao.render(moderngl.TRIANGLES, vertices=3)
                 ctx.disable(moderngl.BLEND)
         return FrameOutput(direct=passes.direct.radiance, indirect=self.indirect)
 

@@ -64,3 +64,16 @@ def test_skips_scene_over_budget(gl_ctx):
     from bench.method import SkipRow
     with pytest.raises(SkipRow, match="triangles"):
         run_method(gl_ctx, ManyLights, make_open_box(), "main", 16, 16, {"max_triangles": 2}, frames=1)
+
+
+def test_more_vpls_than_one_shader_loop_may_run(gl_ctx):
+    """llvmpipe stops a shader invocation after 65535 loop iterations in total; the gather is
+    split into draws so a scene with more triangles is still summed whole."""
+    scene = make_grid_box(109)  # 71,286 triangles
+    assert len(scene.faces) > 65535
+    result = run_method(gl_ctx, ManyLights, scene, "main", 12, 10, frames=1, shadow_resolution=256)
+    g = render_gbuffer(gl_ctx, scene, "main", 12, 10)
+    radius = 0.5 * np.linalg.norm(scene.vertices.max(0) - scene.vertices.min(0))
+    expected = brute_force(scene, g, "lambert", 1e-4 * radius)
+    assert expected.max() > 0
+    assert np.abs(result.indirect - expected).max() <= 1e-4 * expected.max()

@@ -9,7 +9,8 @@ uniform sampler2D u_gbuffer_position;
 uniform sampler2D u_gbuffer_normal;
 uniform sampler2D u_gbuffer_albedo;
 uniform sampler2D u_gbuffer_geo_normal;
-uniform int u_vpl_count;
+uniform int u_vpl_first;  // this draw sums VPLs [first, end): see bench.gl.context.LOOP_CHUNK
+uniform int u_vpl_end;
 uniform float u_eps;  // distance clamp d = max(eps, |x - y|)
 
 #if defined FRAGMENT_SHADER
@@ -23,7 +24,7 @@ void main() {
     vec3 ng = texelFetch(u_gbuffer_geo_normal, px, 0).xyz;
     vec3 rho_x = texelFetch(u_gbuffer_albedo, px, 0).rgb;
     vec3 sum = vec3(0.0);
-    for (int k = 0; k < u_vpl_count; ++k) {
+    for (int k = u_vpl_first; k < u_vpl_end; ++k) {
         Vpl v = vpls[k];
         vec3 d = v.position.xyz - x;  // x -> y
         float dist = length(d);

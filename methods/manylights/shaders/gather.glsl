@@ -6,7 +6,8 @@
 uniform sampler2D u_gbuffer_position;
 uniform sampler2D u_gbuffer_normal;
 uniform sampler2D u_gbuffer_albedo;
-uniform int u_vpl_count;
+uniform int u_vpl_first;  // this draw sums VPLs [first, end): see bench.gl.context.LOOP_CHUNK
+uniform int u_vpl_end;
 uniform float u_eps;       // distance clamp d = max(eps, |x - y|)
 uniform float u_weight;    // 1 / jitter frames
 
@@ -20,7 +21,7 @@ void main() {
     vec3 nx = texelFetch(u_gbuffer_normal, px, 0).xyz;
     vec3 rho_x = texelFetch(u_gbuffer_albedo, px, 0).rgb;
     vec3 sum = vec3(0.0);
-    for (int i = 0; i < u_vpl_count; ++i) {
+    for (int i = u_vpl_first; i < u_vpl_end; ++i) {
         Vpl v = vpls[i];
         vec3 d = v.position_area.xyz - x;          // x -> y
         float dist = length(d);

@@ -1,0 +1,283 @@
+"""`dss`: Deep Screen Space (Nalbach, Ritschel, Seidel, I3D 2014) for one-bounce diffuse light.
+
+Every frame, all of the scene's triangles, hidden ones included (no camera culling), go
+through the tessellator as patches; the control stage picks tessellation levels from each
+triangle's edge lengths and area so that sub-triangles have about the target surfel area
+`a = total scene area / surfel_count`: the surfel density is uniform in object space, and a
+triangle smaller than `a` gives one surfel at its centroid (the tessellator refines, it never
+decimates: the contrast with Forward Light Cuts). The geometry stage turns each sub-triangle
+into a surfel (centroid y, exact area A, the triangle's normal, and the shadowed direct light
+on both sides, B = rho E, from the shared shadow maps) appended to a buffer. Triangles that
+would need more than the tessellator's 64 levels are pre-split once in prepare() into K x K
+sub-patches of their regular subdivision (one patch record per sub-triangle).
+
+Each lit surfel is then splatted (additive RGBA32F blending) as screen-aligned quads into a
+multi-resolution, interleaved framebuffer: a receiver x at view depth z takes the surfel at
+level 0 (full resolution) while |x - y| < 2 S p(z) (p = pixel footprint), at level l in the
+shell [2^l, 2^(l+1)) S p(z), and at the coarsest level beyond: fine sampling where the
+contribution varies fast, coarse sampling far away (the paper's shell splatting). Each level is
+split into M x M interleaved sub-buffers and each surfel goes to one of them per level (hashed,
+weight M^2, so the expectation is the full sum). A receiver adds the unshadowed transfer
+
+    E(x) += B_side(y) / pi <n_x, w>+ |<n_y, w>| A / max(eps, |x - y|)^2
+
+(Lambertian emission on the side the receiver is on, as `manylights` with emission lambert),
+only within the surfel's cut radius r = R sqrt(lum(B) / (threshold lum(B_max))): the distance at
+which its contribution per unit emitting area, B / (pi^2 d^2), falls under `threshold` times the
+brightest surfel's at one scene radius R. `threshold` 0 cuts nothing. Then each level is
+unshuffled and blurred over (2 blur_radius + 1)^2 same-surface neighbours (normal and
+tangent-plane tests), the coarse levels are upsampled with geometry-aware bilinear weights and
+summed, and the receiver's rho/pi is applied: L(x) = rho_x / pi sum_levels E_l(x).
+
+With threshold 0, levels 1 and interleave 1 this is the exact sum over the surfels, which
+converges to the continuous one-bounce integral (and to `manylights`) as surfel_count grows.
+Stages: `surfels` (tessellation, surfel shading), `deinterleave` (level receivers in the
+interleaved layout), `splat`, `unshuffle_blur` (unshuffle, blur, upsample, sum).
+
+| parameter          | default | range        | meaning                                                       |
+|--------------------|---------|--------------|---------------------------------------------------------------|
+| surfel_count       | 8192    | 1 .. 1e8     | target surfels over the whole scene: a = total area / count   |
+| threshold          | 0.002   | 0 .. 100     | contribution threshold of the cut radius (0: no cut)          |
+| levels             | 3       | 1 .. 6       | resolution levels of the splat framebuffer                    |
+| interleave         | 2       | 1 .. 8       | M: M x M interleaved sub-buffers per level                    |
+| shell_pixels       | 8.0     | 0.25 .. 256  | S: level 0 radius 2 S pixel footprints, level l ends at 2^(l+1) S |
+| blur_radius        | 1       | 0 .. 8       | blur window (2 b + 1)^2 in level pixels                       |
+| blur_normal_cos    | 0.9     | -1 .. 1      | blur/upsample: min cosine between the normals                 |
+| blur_plane_pixels  | 1.0     | 0 .. 1e4     | blur/upsample: max tangent-plane distance, in pixel footprints |
+| eps_rel            | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius              |
+| max_surfels        | 4e6     | 1 .. 1e8     | skip a scene whose surfel count exceeds this                  |
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import moderngl
+import numpy as np
+
+from bench.gl import load_program, set_uniforms
+from bench.method import FrameOutput, MethodBase, Param, SkipRow
+
+SHADERS = Path(__file__).parent / "shaders"
+DSS_DEFINES = {"BINDING_DSS_TRIANGLES": 3, "BINDING_DSS_PATCHES": 4, "BINDING_DSS_SURFELS": 5,
+               "BINDING_DSS_COUNTER": 6}
+MAX_TESS_LEVEL = 64               # GL_MAX_TESS_GEN_LEVEL guaranteed by GL 4.x
+TRIANGLES_PER_LEVEL_SQ = 1.5      # GL's triangle tessellation with all levels n makes ~1.5 n^2 triangles
+SURFEL_BYTES = 64                 # std430 Surfel (dss_common.glsl)
+COUNTER_INIT = np.array([0, 1, 0, 0, 0, 0], dtype=np.uint32)  # count, instances, first, base, pad, max lum
+
+
+def sub_triangle_edge(target_area: float) -> float:
+    """Edge length matching a sub-triangle of `target_area` in GL's triangle tessellation
+    (an equilateral triangle of side s at level n has T n^2 sub-triangles and n segments per
+    edge, so s / n = sqrt(4 T a / sqrt(3)), T = TRIANGLES_PER_LEVEL_SQ)."""
+    return float(np.sqrt(4.0 * TRIANGLES_PER_LEVEL_SQ * target_area / np.sqrt(3.0)))
+
+
+def split_factors(tri: np.ndarray, target_area: float) -> np.ndarray:
+    """K per triangle: the smallest K such that each sub-triangle of the K x K subdivision needs
+    at most MAX_TESS_LEVEL (the levels the control shader would pick, divided by K)."""
+    edges = np.stack([tri[:, 2] - tri[:, 1], tri[:, 0] - tri[:, 2], tri[:, 1] - tri[:, 0]], axis=1)
+    edge_levels = np.linalg.norm(edges, axis=2) / sub_triangle_edge(target_area)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    inner = np.sqrt(area / (TRIANGLES_PER_LEVEL_SQ * target_area))
+    need = np.maximum(edge_levels.max(axis=1), inner)
+    return np.maximum(1, np.ceil(need / MAX_TESS_LEVEL)).astype(np.int64)
+
+
+def patch_records(split: np.ndarray) -> np.ndarray:
+    """(P, 4) uint32 patch records (triangle, K, sub-triangle q, 0) with q < K^2."""
+    per = split * split
+    tri = np.repeat(np.arange(len(split), dtype=np.int64), per)
+    start = np.repeat(np.cumsum(per) - per, per)
+    q = np.arange(len(tri), dtype=np.int64) - start
+    rec = np.zeros((len(tri), 4), dtype=np.uint32)
+    rec[:, 0], rec[:, 1], rec[:, 2] = tri, np.repeat(split, per), q
+    return rec
+
+
+def level_layout(width: int, height: int, levels: int, interleave: int) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Per level (W_l, H_l, tile width, tile height) and atlas row offsets, and the atlas size."""
+    sizes = np.zeros((levels, 4), dtype=np.int32)
+    rows = np.zeros(levels, dtype=np.int32)
+    y = 0
+    for lvl in range(levels):
+        w, h = -(-width // 2 ** lvl), -(-height // 2 ** lvl)
+        tw, th = -(-w // interleave), -(-h // interleave)
+        sizes[lvl] = (w, h, tw, th)
+        rows[lvl] = y
+        y += interleave * th
+    return sizes, rows, (int(interleave * sizes[0, 2]), int(y))
+
+
+class DeepScreenSpace(MethodBase):
+    name = "dss"
+    summary = "Deep Screen Space: tessellated surfels of all geometry splatted to interleaved multi-resolution buffers"
+    stages = ("surfels", "deinterleave", "splat", "unshuffle_blur")
+    needs = frozenset({"gbuffer", "shadow_map", "direct"})
+    params = {
+        "surfel_count": Param(8192, "target surfels over the whole scene (target area = total area / count); "
+                              "small triangles still give one surfel each", 1, 100_000_000,
+                              quality=True, sweep=(1024, 4096, 16384, 65536)),
+        "threshold": Param(0.002, "cut radius: contribution per unit area below threshold x the brightest "
+                           "surfel's at one scene radius (0: no cut)", 0.0, 100.0,
+                           quality=True, sweep=(0.05, 0.01, 0.002, 0.0005)),
+        "levels": Param(3, "resolution levels of the splat framebuffer", 1, 6),
+        "interleave": Param(2, "M: M x M interleaved sub-buffers per level (1: none)", 1, 8),
+        "shell_pixels": Param(8.0, "S: level 0 takes receivers within 2 S pixel footprints of a surfel, "
+                              "level l those in [2^l, 2^(l+1)) S (splat cost grows as S^2)", 0.25, 256.0,
+                              quality=True, sweep=(2.0, 4.0, 8.0, 16.0)),
+        "blur_radius": Param(1, "blur window (2 b + 1)^2 in level pixels", 0, 8),
+        "blur_normal_cos": Param(0.9, "blur/upsample: minimum cosine between receiver normals", -1.0, 1.0),
+        "blur_plane_pixels": Param(1.0, "blur/upsample: maximum tangent-plane distance in pixel footprints",
+                                   0.0, 1e4),
+        "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
+        "max_surfels": Param(4_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
+    }
+
+    def prepare(self, gpu, scene, facts, params, view) -> None:
+        self.params = params
+        ctx = gpu.ctx
+        self.ctx = ctx
+        levels, interleave = params["levels"], params["interleave"]
+        target_area = facts.total_area_m2 / params["surfel_count"]
+        tri = gpu.positions[gpu.faces.astype(np.int64)].astype(np.float64)
+        normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-300)
+        records = np.zeros((len(tri), 4, 4), dtype=np.float32)
+        records[:, :3, :3] = tri
+        records[:, 3, :3] = normal
+        patches = patch_records(split_factors(tri, target_area))
+        self.patch_count = len(patches)
+
+        defines = dict(DSS_DEFINES, LEVELS=levels, INTERLEAVE=interleave, MAX_TESS_LEVEL=MAX_TESS_LEVEL,
+                       TRIANGLES_PER_LEVEL_SQ=TRIANGLES_PER_LEVEL_SQ)
+        self.triangles = ctx.buffer(records.tobytes())
+        self.patches = ctx.buffer(patches.tobytes())
+        self.counter = ctx.buffer(COUNTER_INIT.tobytes())
+        self.generate = load_program(ctx, SHADERS / "surfels.glsl", dict(defines, COUNT_ONLY=False))
+        self.generate_vao = ctx.vertex_array(self.generate, [])
+        sizes, rows, atlas = level_layout(view.width, view.height, levels, interleave)
+        self.level_sizes, self.level_rows, self.atlas_size = sizes, rows, atlas
+
+        # Receivers of every level (deinterleaved), splat accumulation, blurred levels, output.
+        self.receiver_position = ctx.texture(atlas, 4, dtype="f4")
+        self.receiver_normal = ctx.texture(atlas, 4, dtype="f4")
+        self.splat_tex = ctx.texture(atlas, 4, dtype="f4")
+        self.levels_tex = ctx.texture(atlas, 4, dtype="f4")
+        self.indirect = ctx.texture((view.width, view.height), 4, dtype="f4")
+        for t in (self.receiver_position, self.receiver_normal, self.splat_tex, self.levels_tex, self.indirect):
+            t.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.receiver_fbo = ctx.framebuffer([self.receiver_position, self.receiver_normal])
+        self.splat_fbo = ctx.framebuffer([self.splat_tex])
+        self.levels_fbo = ctx.framebuffer([self.levels_tex])
+        self.indirect_fbo = ctx.framebuffer([self.indirect])
+
+        # The surfel count depends on the geometry only: count once, size the buffer exactly.
+        counting = load_program(ctx, SHADERS / "surfels.glsl", dict(defines, COUNT_ONLY=True))
+        try:
+            counting_vao = ctx.vertex_array(counting, [])
+            self._run_generation(counting, counting_vao, target_area, capacity=0)
+            counting_vao.release()
+        finally:
+            counting.release()
+        self.surfel_count = int(np.frombuffer(self.counter.read(4), dtype=np.uint32)[0])
+        if self.surfel_count > params["max_surfels"]:
+            raise SkipRow(f"scene '{scene.name}' gives {self.surfel_count} surfels, more than "
+                          f"max_surfels={params['max_surfels']}")
+        self.surfels = ctx.buffer(reserve=max(1, self.surfel_count) * SURFEL_BYTES)
+        self.target_area = target_area
+
+        self.deinterleave = load_program(ctx, SHADERS / "deinterleave.glsl", defines)
+        self.splat = load_program(ctx, SHADERS / "splat.glsl", defines)
+        self.unshuffle = load_program(ctx, SHADERS / "unshuffle_blur.glsl", defines)
+        self.compose = load_program(ctx, SHADERS / "compose.glsl", defines)
+        self.deinterleave_vao = ctx.vertex_array(self.deinterleave, [])
+        self.splat_vao = ctx.vertex_array(self.splat, [])
+        self.unshuffle_vao = ctx.vertex_array(self.unshuffle, [])
+        self.compose_vao = ctx.vertex_array(self.compose, [])
+        fov = np.radians(view.camera.fov_y_deg)
+        layout = dict(u_level_size=sizes, u_level_y=rows, u_pixel_k=float(2.0 * np.tan(fov / 2) / view.height),
+                      u_shell_pixels=params["shell_pixels"], u_blur_normal_cos=params["blur_normal_cos"],
+                      u_blur_plane_pixels=params["blur_plane_pixels"])
+        for prog in (self.deinterleave, self.splat, self.unshuffle, self.compose):
+            set_uniforms(prog, u_view=view.view, **layout)
+        set_uniforms(self.splat, u_proj=view.proj, u_near=float(view.near), u_screen=(view.width, view.height),
+                     u_atlas=tuple(float(v) for v in atlas), u_scene_radius=float(gpu.radius),
+                     u_radius_max=float(2.0 * gpu.radius * 1.01), u_threshold=params["threshold"],
+                     u_eps=float(params["eps_rel"] * gpu.radius), u_capacity=self.surfel_count)
+        set_uniforms(self.unshuffle, u_blur_radius=params["blur_radius"])
+
+    def _run_generation(self, program, vao, target_area: float, capacity: int) -> None:
+        ctx = self.ctx
+        self.counter.write(COUNTER_INIT.tobytes())
+        self.splat_fbo.use()  # no default framebuffer: something must be bound to draw
+        self.triangles.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_TRIANGLES"])
+        self.patches.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_PATCHES"])
+        self.counter.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_COUNTER"])
+        set_uniforms(program, u_target_area=float(target_area), u_edge_length=sub_triangle_edge(target_area),
+                     u_capacity=int(capacity))
+        ctx.patch_vertices = 3
+        vao.render(moderngl.PATCHES, vertices=3 * self.patch_count)
+        ctx.memory_barrier()
+
+    def render(self, frame, prof) -> FrameOutput:
+        ctx, gpu, passes = self.ctx, frame.gpu, frame.passes
+        atlas_viewport = (0, 0) + tuple(self.atlas_size)
+        ctx.disable(moderngl.DEPTH_TEST | moderngl.BLEND)
+        with prof.stage("surfels"):
+            gpu.bind_scene_buffers()
+            self.surfels.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_SURFELS"])
+            passes.shadows.bind(self.generate, 0)
+            set_uniforms(self.generate, u_light_count=gpu.light_count)
+            self._run_generation(self.generate, self.generate_vao, self.target_area, self.surfel_count)
+        with prof.stage("deinterleave"):
+            self.receiver_fbo.use()
+            ctx.viewport = atlas_viewport
+            passes.gbuffer.bind(self.deinterleave)
+            self.deinterleave_vao.render(moderngl.TRIANGLES, vertices=3)
+        with prof.stage("splat"):
+            self.splat_fbo.use()
+            ctx.viewport = atlas_viewport
+            self.splat_fbo.clear(0.0, 0.0, 0.0, 0.0)
+            ctx.enable(moderngl.BLEND)
+            ctx.blend_func = moderngl.ONE, moderngl.ONE
+            self.receiver_position.use(0)
+            self.receiver_normal.use(1)
+            set_uniforms(self.splat, u_receiver_position=0, u_receiver_normal=1, u_rand=frame.random_u32(0))
+            self.surfels.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_SURFELS"])
+            self.counter.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_COUNTER"])
+            self.splat_vao.render_indirect(self.counter, mode=moderngl.POINTS, count=1)
+            ctx.disable(moderngl.BLEND)
+        with prof.stage("unshuffle_blur"):
+            self.levels_fbo.use()
+            ctx.viewport = atlas_viewport
+            self.receiver_position.use(0)
+            self.receiver_normal.use(1)
+            self.splat_tex.use(2)
+            set_uniforms(self.unshuffle, u_receiver_position=0, u_receiver_normal=1, u_splat=2)
+            self.unshuffle_vao.render(moderngl.TRIANGLES, vertices=3)
+            self.indirect_fbo.use()
+            ctx.viewport = (0, 0, frame.width, frame.height)
+            unit = passes.gbuffer.bind(self.compose)
+            self.receiver_position.use(unit)
+            self.receiver_normal.use(unit + 1)
+            self.levels_tex.use(unit + 2)
+            set_uniforms(self.compose, u_receiver_position=unit, u_receiver_normal=unit + 1, u_levels=unit + 2)
+            self.compose_vao.render(moderngl.TRIANGLES, vertices=3)
+        return FrameOutput(direct=passes.direct.radiance, indirect=self.indirect,
+                           extra={"surfel_count": self.surfel_count, "patch_count": self.patch_count,
+                                  "target_area_m2": self.target_area})
+
+    def release(self) -> None:
+        from bench.gl.context import park
+        if getattr(self, "ctx", None) is None:  # prepare() stopped before allocating anything
+            return
+        park(self.ctx)
+        for name in ("receiver_fbo", "splat_fbo", "levels_fbo", "indirect_fbo", "receiver_position",
+                     "receiver_normal", "splat_tex", "levels_tex", "indirect", "generate_vao", "deinterleave_vao",
+                     "splat_vao", "unshuffle_vao", "compose_vao", "generate", "deinterleave", "splat", "unshuffle",
+                     "compose", "surfels", "counter", "patches", "triangles"):
+            obj = getattr(self, name, None)
+            if obj is not None:
+                obj.release()
+                setattr(self, name, None)

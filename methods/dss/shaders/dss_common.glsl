@@ -1,0 +1,77 @@
+// Deep Screen Space: surfel records, the multi-resolution interleaved atlas layout, the shell
+// rule that gives every (surfel, receiver) pair exactly one level, and the geometry test of
+// the blur and the upsampling. LEVELS and INTERLEAVE are injected #defines.
+#ifndef DSS_COMMON_GLSL
+#define DSS_COMMON_GLSL
+
+struct Surfel {
+    vec4 position_area;     // xyz centre (re-centred world), w area (m^2)
+    vec3 normal;            // unit geometric normal of its triangle
+    uint key;               // stable hash of (patch, sub-triangle): picks the interleaved sub-buffer
+    vec4 radiosity_front;   // rgb rho E on the side +normal, w luminance
+    vec4 radiosity_back;    // rgb rho E on the side -normal, w luminance
+};
+layout(std430, binding = BINDING_DSS_SURFELS) buffer SurfelBlock { Surfel surfels[]; };
+
+// Doubles as the DrawArraysIndirect command of the splat pass (count, instances, first, base).
+layout(std430, binding = BINDING_DSS_COUNTER) buffer SurfelCounter {
+    uint surfel_count;
+    uint instance_count;
+    uint first_vertex;
+    uint base_instance;
+    uint command_pad;
+    uint max_luminance_bits;   // floatBitsToUint of the brightest surfel's luminance (>= 0)
+};
+
+float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
+
+// Level l has ceil(W / 2^l) x ceil(H / 2^l) pixels; each of its pixels stands for one receiver
+// of its 2^l x 2^l block. It is stored deinterleaved: INTERLEAVE x INTERLEAVE sub-buffers of
+// tile x tile pixels, sub-buffer (i, j) holding the level pixels X = INTERLEAVE * uv + (i, j).
+// Levels are stacked vertically in one atlas, level l from row u_level_y[l].
+uniform ivec4 u_level_size[LEVELS];   // W_l, H_l, tile width, tile height
+uniform int u_level_y[LEVELS];
+uniform float u_pixel_k;              // full-resolution pixel size at unit view depth (m / m)
+uniform float u_shell_pixels;         // S: level 0 takes receivers closer than 2 S pixel footprints
+
+ivec2 atlas_of(int l, ivec2 X) {
+    ivec4 s = u_level_size[l];
+    ivec2 cls = X % INTERLEAVE;
+    ivec2 uv = X / INTERLEAVE;
+    return ivec2(cls.x * s.z + uv.x, u_level_y[l] + cls.y * s.w + uv.y);
+}
+
+// Inverse of atlas_of for a pixel of the deinterleaved atlas; false outside every level.
+bool level_pixel_of_atlas(ivec2 a, out int l, out ivec2 X) {
+    for (l = 0; l < LEVELS; ++l) {
+        ivec4 s = u_level_size[l];
+        ivec2 local = ivec2(a.x, a.y - u_level_y[l]);
+        if (local.y < 0 || local.y >= INTERLEAVE * s.w) continue;
+        ivec2 cls = local / s.zw;
+        if (cls.x >= INTERLEAVE) return false;
+        X = (local % s.zw) * INTERLEAVE + cls;
+        return X.x < s.x && X.y < s.y;
+    }
+    return false;
+}
+
+// The level a receiver at view depth `depth` gets a surfel at distance `dist` from: level 0
+// below 2 S pixel footprints, level l in [2^l, 2^(l+1)) S footprints, the last level beyond.
+// Level l samples the receivers every 2^l pixels, i.e. about 1/S of the distance: the shells
+// of Deep Screen Space's splatting (fine near the surfel, coarse far from it).
+int shell_level(float dist, float depth) {
+    float t = dist / (u_shell_pixels * u_pixel_k * depth);
+    if (t < 2.0) return 0;
+    return min(LEVELS - 1, int(floor(log2(t))));
+}
+
+uniform float u_blur_normal_cos;    // neighbours whose normals differ more are rejected
+uniform float u_blur_plane_pixels;  // max distance to the tangent plane, in pixel footprints
+
+// 1 when receiver q may share p's smooth indirect irradiance (same surface), else 0.
+float same_surface(vec3 xp, vec3 np, float footprint, vec3 xq, vec3 nq) {
+    if (dot(np, nq) < u_blur_normal_cos) return 0.0;
+    return abs(dot(np, xq - xp)) <= u_blur_plane_pixels * footprint ? 1.0 : 0.0;
+}
+
+#endif
