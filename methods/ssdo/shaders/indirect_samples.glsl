@@ -1,0 +1,91 @@
+// SSDO one-bounce indirect light (Ritschel, Grosch, Seidel 2009, Sec. 3.2), radiometric form:
+//   L(x) = rho_x / pi * A_s * sum_{blocked i} L_s(y_i) <n_x, w_i>+ <n_y, -w_i>+ / max(d_clamp, |y_i - x|)^2
+// Sample i is a point s_i uniformly distributed in the volume of the hemisphere of radius r_max
+// around x (shading normal n_x). It is blocked when it lies behind the visible surface at the
+// pixel it projects to; that surface point y_i (GBuffer) is then a sender patch of area
+// A_s = pi r_max^2 / N whose outgoing radiance L_s is its direct radiance (direct pass).
+// Interleaved patterns: the pixels of each PATTERN x PATTERN block use different sample sets
+// (one Cranley-Patterson offset per block cell applied to the frame's base set).
+// Output: rgb = indirect radiance, a = view depth of x (0 = background) for the blur.
+#include "fullscreen.glsl"
+#include "common.glsl"
+uniform sampler2D u_gbuffer_position;
+uniform sampler2D u_gbuffer_normal;
+uniform sampler2D u_gbuffer_albedo;
+uniform sampler2D u_direct_radiance;
+uniform mat4 u_view_proj;
+uniform int u_sample_count;      // N
+uniform float u_r_max;           // hemisphere radius (re-centred world units)
+uniform float u_sender_area;     // A_s = pi r_max^2 / N
+uniform float u_clamp;           // distance clamp d_clamp
+uniform int u_pattern_size;      // M: M x M pixel blocks, M^2 sample sets
+uniform uint u_rand;             // per-frame random value
+
+#if defined FRAGMENT_SHADER
+layout(location = 0) out vec4 out_radiance;
+
+// Orthonormal tangent frame around unit n (Duff et al. 2017, branchless).
+void tangent_frame(vec3 n, out vec3 t, out vec3 b) {
+    float s = n.z >= 0.0 ? 1.0 : -1.0;
+    float a = -1.0 / (s + n.z);
+    float c = n.x * n.y * a;
+    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
+    b = vec3(c, s + n.y * n.y * a, -n.y);
+}
+
+void main() {
+    ivec2 px = ivec2(gl_FragCoord.xy);
+    vec4 p = texelFetch(u_gbuffer_position, px, 0);
+    if (p.w == 0.0) { out_radiance = vec4(0.0); return; }
+    ivec2 size = textureSize(u_gbuffer_position, 0);
+    vec3 x = p.xyz;
+    vec3 nx = texelFetch(u_gbuffer_normal, px, 0).xyz;
+    vec3 rho_x = texelFetch(u_gbuffer_albedo, px, 0).rgb;
+    float depth_x = (u_view_proj * vec4(x, 1.0)).w;
+    vec3 t, b;
+    tangent_frame(nx, t, b);
+
+    ivec2 cell = px % u_pattern_size;
+    uint k = uint(cell.x + u_pattern_size * cell.y);
+    uint hk = hash_u32(u_rand ^ hash_u32(k * 2654435761u + 0x68E31DA4u));
+    vec3 offset = vec3(u32_to_unit(hk), u32_to_unit(hash_u32(hk ^ 0x1B56C4E9u)),
+                       u32_to_unit(hash_u32(hk ^ 0x7F4A7C15u)));
+
+    vec3 sum = vec3(0.0);
+    for (int i = 0; i < u_sample_count; ++i) {
+        // Base set of the frame (the same for every pixel), cos(theta) stratified over N.
+        uint h = hash_u32(u_rand + 0x9E3779B9u * uint(i + 1));
+        uint h2 = hash_u32(h ^ 0x85EBCA6Bu);
+        uint h3 = hash_u32(h2 ^ 0xC2B2AE35u);
+        float u1 = fract((float(i) + u32_to_unit(h)) / float(u_sample_count) + offset.x);
+        float u2 = fract(u32_to_unit(h2) + offset.y);
+        float u3 = fract(u32_to_unit(h3) + offset.z);
+        // Uniform direction on the hemisphere (cos theta = u1), uniform radius in volume.
+        float cos_t = u1, sin_t = sqrt(max(0.0, 1.0 - u1 * u1)), phi = 2.0 * PI * u2;
+        vec3 dir = t * (sin_t * cos(phi)) + b * (sin_t * sin(phi)) + nx * cos_t;
+        vec3 s = x + dir * (u_r_max * pow(u3, 1.0 / 3.0));
+
+        vec4 clip = u_view_proj * vec4(s, 1.0);
+        if (clip.w <= 0.0) continue;
+        vec2 ndc = clip.xy / clip.w;
+        if (any(greaterThanEqual(abs(ndc), vec2(1.0)))) continue;   // off screen: nothing known
+        ivec2 q = min(ivec2((ndc * 0.5 + 0.5) * vec2(size)), size - 1);
+        vec4 yp = texelFetch(u_gbuffer_position, q, 0);
+        if (yp.w == 0.0) continue;                                  // background: open direction
+        vec3 y = yp.xyz;
+        float depth_y = (u_view_proj * vec4(y, 1.0)).w;
+        if (clip.w <= depth_y * (1.0 + DEPTH_BIAS_REL)) continue;   // in front of the surface: open
+        vec3 d = y - x;
+        float dist = length(d);
+        if (dist <= 0.0) continue;
+        vec3 w = d / dist;
+        float cos_r = dot(nx, w);
+        // The GBuffer normal faces the camera: the direct radiance is that of this side.
+        float cos_s = -dot(texelFetch(u_gbuffer_normal, q, 0).xyz, w);
+        if (cos_r <= 0.0 || cos_s <= 0.0) continue;
+        float dc = max(u_clamp, dist);
+        sum += texelFetch(u_direct_radiance, q, 0).rgb * (cos_r * cos_s / (dc * dc));
+    }
+    out_radiance = vec4(rho_x * INV_PI * u_sender_area * sum, depth_x);
+}
+#endif

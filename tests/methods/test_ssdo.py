@@ -1,0 +1,208 @@
+"""`ssdo`: Screen-Space Directional Occlusion's one-bounce indirect term (Ritschel et al. 2009).
+
+The physically checkable case is a corner: a floor lit straight down by a directional light
+(radiance L = rho E / pi everywhere) and a perpendicular wall that gets no direct light, so all
+the wall's light is the floor's bounce. There the SSDO estimator has a closed form that numpy
+can evaluate independently (a sample below the floor is blocked; its sender is where the camera
+ray through it meets the floor), and `manylights` gives the exact one-bounce value.
+"""
+import numpy as np
+import pytest
+
+from bench.gl import render_direct, render_gbuffer
+from bench.harness import run_method
+from bench.method import ParamError, resolve_params
+from bench.scene import Camera, DirectionalLight, PointLight, Scene, compute_facts
+from methods.manylights.method import ManyLights
+from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
+from tests.conftest import grid_quad, make_grid_box
+
+W, H = 96, 72
+RHO, E_SUN = 0.8, 3.0
+# Steep view of the corner (about 60 degrees down): a sender is displaced from the blocked sample
+# along the camera ray by depth * cot(elevation), so a steep view keeps SSDO's estimate close to
+# the exact bounce (the oblique view of the model test below would halve it).
+CORNER_EYE = (0.0, 2.5, 1.2)
+
+
+def make_corner(n=16, eye=CORNER_EYE):
+    """Floor z in [0, 2] and wall z = 0 (both x in [-1, 1], albedo 0.8, n x n grids), sun straight
+    down: the floor has radiance RHO E / pi, the wall (parallel to the light) none."""
+    parts = [grid_quad([-1, 0, 0], [0, 0, 2], [2, 0, 0], n),   # floor, normal +y
+             grid_quad([-1, 0, 0], [2, 0, 0], [0, 2, 0], n)]   # wall, normal +z
+    verts, faces, offset = [], [], 0
+    for v, f in parts:
+        verts.append(v)
+        faces.append(f + offset)
+        offset += len(v)
+    faces = np.concatenate(faces)
+    return Scene.build("corner", np.concatenate(verts), faces, np.full((len(faces), 3), RHO),
+                       [DirectionalLight([0, -1, 0], [E_SUN] * 3)],
+                       {"main": Camera(list(eye), [0, 0.3, 0], fov_y_deg=50)})
+
+
+def ssdo_model(x, camera, r_max, radiance, clamp, samples=100_000, seed=0):
+    """Expected value of the SSDO estimate at wall point x (normal +z) of `make_corner`, by Monte
+    Carlo over the same sample distribution (uniform in the hemisphere's volume)."""
+    rng = np.random.default_rng(seed)
+    u1, u2, u3 = rng.random((3, samples))
+    sin_t, phi = np.sqrt(1.0 - u1 ** 2), 2.0 * np.pi * u2
+    s = x + np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), u1], 1) * (r_max * np.cbrt(u3))[:, None]
+    eye = camera.eye
+    right, up, fwd = camera.basis()
+    rel = s - eye
+    depth = rel @ fwd
+    tan_half = np.tan(np.radians(camera.fov_y_deg) / 2.0)
+    on_screen = ((depth > 0) & (np.abs(rel @ right) < depth * tan_half * W / H)
+                 & (np.abs(rel @ up) < depth * tan_half))
+    y = eye + (eye[1] / (eye[1] - s[:, 1]))[:, None] * (s - eye)        # camera ray meets the floor
+    blocked = on_screen & (s[:, 1] < 0) & (np.abs(y[:, 0]) <= 1) & (y[:, 2] >= 0) & (y[:, 2] <= 2)
+    w = y - x
+    d = np.linalg.norm(w, axis=1)
+    w /= d[:, None]
+    term = radiance * np.clip(w[:, 2], 0, None) * np.clip(-w[:, 1], 0, None) / np.maximum(clamp, d) ** 2
+    # sum over N samples of A_s term = pi r^2 * mean over samples (A_s = pi r^2 / N)
+    return RHO / np.pi * np.pi * r_max ** 2 * np.where(blocked, term, 0.0).mean()
+
+
+def wall_bands(gbuffer, bands):
+    pos = gbuffer["position"]
+    wall = gbuffer["mask"] & (np.abs(pos[..., 2]) < 1e-4) & (np.abs(pos[..., 0]) < 0.5)
+    return {band: wall & (pos[..., 1] >= band[0]) & (pos[..., 1] < band[1]) for band in bands}
+
+
+def test_parameters_are_range_checked():
+    with pytest.raises(ParamError, match="sample_count"):
+        resolve_params(Ssdo, {"sample_count": 0})
+    with pytest.raises(ParamError, match="blur_normal_threshold"):
+        resolve_params(Ssdo, {"blur_normal_threshold": 1.5})
+    with pytest.raises(ParamError, match="radius_rel"):
+        resolve_params(Ssdo, {"radius_rel": float("nan")})
+    with pytest.raises(ParamError, match="unknown parameter"):
+        resolve_params(Ssdo, {"r_max": 0.3})
+    assert resolve_params(Ssdo, {})["pattern_size"] == 4
+
+
+def test_registered_and_documented():
+    import sys
+    from pathlib import Path
+
+    from bench.registry import load_method
+    assert load_method("ssdo") is Ssdo
+    module = sys.modules[Ssdo.__module__]      # the module docstring is the manual
+    readme = (Path(module.__file__).parent / "README.md").read_text()
+    for name, p in Ssdo.params.items():   # every knob in both parameter tables, with its default
+        for text in (module.__doc__, readme):
+            row = next((line for line in text.splitlines() if line.startswith(f"| {name} ")), None)
+            assert row is not None and f" {p.default} " in row, (name, row)
+
+
+def test_same_seed_same_image_and_stage_timings(gl_ctx):
+    scene = make_grid_box(4)
+    a = run_method(gl_ctx, Ssdo, scene, "main", 64, 48, seed=3, frames=2)
+    b = run_method(gl_ctx, Ssdo, scene, "main", 64, 48, seed=3, frames=1)
+    c = run_method(gl_ctx, Ssdo, scene, "main", 64, 48, seed=4, frames=1)
+    assert a.indirect.max() > 0
+    assert np.array_equal(a.indirect, b.indirect) and np.array_equal(a.direct, b.direct)
+    assert not np.array_equal(a.indirect, c.indirect)          # the sample sets depend on the seed
+    for stage in ("gbuffer_shadow", "direct_light", "indirect_samples", "blur"):
+        assert len(a.stage_ms[stage]) == 2 and all(np.isfinite(v) and v >= 0 for v in a.stage_ms[stage])
+
+
+@pytest.mark.parametrize("params", [
+    {"clamp_distance_rel": 1e-6, "sample_count": 1, "pattern_size": 1, "blur_size": 1},
+    {"clamp_distance_rel": 1.0, "radius_rel": 4.0, "sample_count": 64},
+    {"radius_rel": 1e-4, "blur_size": 32, "pattern_size": 16},
+    {"blur_depth_threshold": 0.0, "blur_normal_threshold": 1.0},
+    {"blur_depth_threshold": 10.0, "blur_normal_threshold": -1.0, "blur_size": 7},
+])
+def test_finite_and_non_negative_at_parameter_extremes(gl_ctx, params):
+    r = run_method(gl_ctx, Ssdo, make_grid_box(4), "main", 64, 48, params, frames=1)
+    assert np.all(np.isfinite(r.indirect)) and r.indirect.min() >= 0.0
+
+
+def test_direct_component_is_the_shared_shadowed_pass(gl_ctx):
+    scene = make_grid_box(4)
+    r = run_method(gl_ctx, Ssdo, scene, "main", 64, 48, frames=1, shadow_resolution=1024)
+    assert np.array_equal(r.direct, render_direct(gl_ctx, scene, "main", 64, 48, shadow_resolution=1024))
+
+
+def test_no_visible_sender_gives_zero(gl_ctx):
+    """A single lit plane: every hemisphere sample lies in front of the plane, none is blocked."""
+    v, f = grid_quad([-2, 0, -2], [0, 0, 4], [4, 0, 0], 4)
+    scene = Scene.build("plane", v, f, np.full((len(f), 3), 0.7), [PointLight([0, 1.5, 0], [5.0] * 3)],
+                        {"main": Camera([0, 1.2, 2.5], [0, 0, -0.5], fov_y_deg=60)})
+    r = run_method(gl_ctx, Ssdo, scene, "main", 64, 48, {"radius_rel": 1.0, "sample_count": 64}, frames=1)
+    assert (r.direct.sum(axis=2) > 0).mean() > 0.5
+    assert np.all(r.indirect == 0.0)
+
+
+def test_matches_a_numpy_model_of_the_estimator(gl_ctx):
+    """Band means of wall pixels against the SSDO expectation evaluated in numpy at the same
+    GBuffer positions, no blur. Tolerance 10%: all pixels share the frame's 64 sample sets
+    (pattern 8 x 8), so the band means carry the noise of 64 x 1024 samples of a 1/d^2
+    integrand, +-5% over seeds 1..3; the rest is the GBuffer's pixel-centre senders vs exact
+    ray hits. Bands start 0.1 m above the corner, where one pixel (~2.5 cm) is small against d."""
+    scene = make_corner()
+    radius = compute_facts(scene).scene_radius
+    params = {"sample_count": 1024, "pattern_size": 8, "radius_rel": 1.0, "clamp_distance_rel": 1e-3,
+              "blur_size": 1}
+    r = run_method(gl_ctx, Ssdo, scene, "main", W, H, params, seed=1, frames=1)
+    g = render_gbuffer(gl_ctx, scene, "main", W, H)
+    floor = g["mask"] & (g["position"][..., 1] < 1e-4)
+    assert np.allclose(r.direct[floor], RHO * E_SUN / np.pi, rtol=1e-4)
+    for band, sel in wall_bands(g, [(0.1, 0.2), (0.2, 0.4), (0.4, 0.8)]).items():
+        pick = np.argwhere(sel)[:: max(1, int(sel.sum()) // 32)]
+        gpu = np.mean([r.indirect[i, j, 0] for i, j in pick])
+        model = np.mean([ssdo_model(g["position"][i, j].astype(np.float64), scene.cameras["main"], radius,
+                                    RHO * E_SUN / np.pi, 1e-3 * radius, samples=20_000, seed=k)
+                         for k, (i, j) in enumerate(pick)])
+        assert gpu == pytest.approx(model, rel=0.10), band
+        # rgb: grey scene, grey result
+        assert np.allclose(r.indirect[sel][:, 1], r.indirect[sel][:, 0], rtol=1e-5)
+
+
+def test_corner_approaches_manylights(gl_ctx):
+    """Many samples and r_max = scene radius, wall 0.1 .. 0.8 m above the corner: SSDO within
+    [0.65, 1.3] x the exact bounce. Why not tighter: SSDO is not a consistent estimator; its
+    blocked samples stand for area pi r_max^2 / N (exact only for a plane through x), their
+    senders slide along camera rays by depth * cot(elevation), and nothing beyond r_max counts.
+    The numpy model of the estimator (test above) puts its own bias here at -20% .. +5%; a
+    wrong factor (pi, A_s, a missing cosine) would be off by 2x or more."""
+    scene = make_corner()
+    params = {"sample_count": 512, "pattern_size": 8, "blur_size": 8, "radius_rel": 1.0,
+              "clamp_distance_rel": 1e-3}
+    r = run_method(gl_ctx, Ssdo, scene, "main", W, H, params, seed=1, frames=1)
+    m = run_method(gl_ctx, ManyLights, scene, "main", W, H, {"jitter_frames": 4, "eps_rel": 1e-3}, frames=1)
+    g = render_gbuffer(gl_ctx, scene, "main", W, H)
+    (sel,) = wall_bands(g, [(0.1, 0.8)]).values()
+    ratio = r.indirect[sel].mean() / m.indirect[sel].mean()
+    assert 0.65 < ratio < 1.3, ratio
+    # The default r_max (half the scene radius) sees only nearer senders: less light.
+    d = run_method(gl_ctx, Ssdo, scene, "main", W, H, {"sample_count": 64}, seed=1, frames=1)
+    assert 0.0 < d.indirect[sel].mean() < r.indirect[sel].mean()
+
+
+def test_blur_is_geometry_aware_and_removes_the_pattern(gl_ctx):
+    """The floor's hemisphere samples behind the wall find the unlit wall: the floor gets exactly
+    0, the wall > 0. The geometry-aware blur keeps the floor at 0; a blur that ignores geometry
+    leaks the wall's light onto it. On the wall, the blur (as wide as the pattern) removes most
+    of the pixel-to-pixel variation of the interleaved sample sets."""
+    scene = make_corner()
+    base = {"sample_count": 8, "radius_rel": 0.5}
+    aware = run_method(gl_ctx, Ssdo, scene, "main", W, H, base, frames=1).indirect
+    blind = run_method(gl_ctx, Ssdo, scene, "main", W, H,
+                       dict(base, blur_depth_threshold=10.0, blur_normal_threshold=-1.0), frames=1).indirect
+    raw = run_method(gl_ctx, Ssdo, scene, "main", W, H, dict(base, blur_size=1), frames=1).indirect
+    g = render_gbuffer(gl_ctx, scene, "main", W, H)
+    floor = g["mask"] & (g["position"][..., 1] < 1e-4)
+    (wall,) = wall_bands(g, [(0.1, 1.5)]).values()
+    assert np.all(raw[floor] == 0.0) and np.all(aware[floor] == 0.0)
+    assert blind[floor].max() > 0.0
+    assert raw[wall].min() >= 0 and aware[wall].mean() > 0
+
+    def roughness(img):  # mean |horizontal neighbour difference| on the wall, relative
+        lum = img[..., 0]
+        both = wall[:, 1:] & wall[:, :-1]
+        return np.abs(np.diff(lum, axis=1))[both].mean() / lum[wall].mean()
+    assert roughness(aware) < 0.5 * roughness(raw)
