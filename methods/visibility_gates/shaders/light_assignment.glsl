@@ -1,0 +1,36 @@
+// Light assignment, step 3 (paper V.C): for every geometry cluster and every word of 32 VPLs,
+// a bit mask of the VPLs that may light the cluster: a VPL in the cluster's own visibility
+// cluster always; a VPL of another visibility cluster C when the cone from it through one of
+// the gates joining C to the cluster's visibility cluster meets the cluster's bounding sphere
+// (the sphere around its bounding box). Brute force over the VPLs, as in the paper.
+#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "topology.glsl"
+layout(local_size_x = LA_GROUP) in;
+uniform int u_vpl_count;
+uniform uint u_words;
+uniform bool u_use_gates;
+
+void main() {
+    uint item = gl_GlobalInvocationID.x;
+    if (item >= geo_cluster_count * u_words) return;
+    uint g = item / u_words, word = item % u_words;
+    GeoCluster gc = geo_clusters[g];
+    int d = int(gc.lo.w);
+    vec3 s = 0.5 * (gc.lo.xyz + gc.hi.xyz);
+    float rho = 0.5 * length(gc.hi.xyz - gc.lo.xyz);
+    uint mask = 0u;
+    for (uint b = 0u; b < 32u; ++b) {
+        int k = int(word * 32u + b);
+        if (k >= u_vpl_count) break;
+        int c = vpl_cluster[k];
+        if (c < 0) continue;  // a VPL without flux
+        if (c == d) { mask |= 1u << b; continue; }
+        if (!u_use_gates) continue;
+        vec3 y = vpls[k].position.xyz;
+        ivec2 range = adjacency_range[c];
+        for (int e = range.x; e < range.y; ++e) {
+            if (adjacency[e].x == d && cone_meets_sphere(adjacency[e].y, y, s, rho)) { mask |= 1u << b; break; }
+        }
+    }
+    light_masks[g * u_words + word] = mask;
+}
