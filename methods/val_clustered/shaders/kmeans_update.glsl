@@ -1,0 +1,43 @@
+// k-means update (paper Sec. 6, the "divide by the count" pass): VAL j <- mean position, mean
+// normal (normalised) and total flux of the VPLs scattered to it. An empty VAL keeps its centre
+// (count 0: no VPL uses it). FINALIZE: the VAL's VPL count under the mapping C and, from the bounding rectangle of its VPLs on its plane,
+// the VAL's size lambda = sqrt(area), and its depth normalisation distance `far` (its distance
+// to the farthest corner of the scene's bounding box).
+#include "val_records.glsl"
+layout(local_size_x = 64) in;
+uniform sampler2D u_sum_position;  // xyz sum, w count
+uniform sampler2D u_sum_normal;
+uniform sampler2D u_sum_flux;
+uniform sampler2D u_bounds;        // max s, max t, -min s, -min t
+uniform vec3 u_box_min;
+uniform vec3 u_box_max;
+
+void main() {
+    int j = int(gl_GlobalInvocationID.x);
+    if (j >= u_cluster_count) return;
+#if FINALIZE
+    vals[j].position.w = float(val_vpl_count[j]);
+    if (vals[j].position.w > 0.0) {
+        vec4 bnd = texelFetch(u_bounds, ivec2(j, 0), 0);
+        vec2 extent = max(bnd.xy + bnd.zw, vec2(0.0));
+        vals[j].normal.w = sqrt(extent.x * extent.y);
+    } else {
+        vals[j].normal.w = 0.0;
+    }
+    vec3 o = val_origin(vals[j]);
+    vec3 far_corner = max(abs(u_box_min - o), abs(u_box_max - o));
+    vals[j].flux.w = length(far_corner) * 1.001 + 1e-6;
+#else
+    vec4 sp = texelFetch(u_sum_position, ivec2(j, 0), 0);
+    if (sp.w > 0.0) {
+        vec3 sn = texelFetch(u_sum_normal, ivec2(j, 0), 0).xyz;
+        vals[j].position = vec4(sp.xyz / sp.w, sp.w);
+        float len = length(sn);
+        if (len > 1e-6 * sp.w) vals[j].normal.xyz = sn / len;
+        vals[j].flux = vec4(texelFetch(u_sum_flux, ivec2(j, 0), 0).rgb, 0.0);
+    } else {
+        vals[j].position.w = 0.0;
+        vals[j].flux = vec4(0.0);
+    }
+#endif
+}
