@@ -7,7 +7,8 @@ import sys
 from pathlib import Path
 
 DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside", "rooms")
-DEFAULT_METHODS = ("direct", "ir_unshadowed", "ir_shadowed", "manylights", "flc", "ssdo", "dss")
+DEFAULT_METHODS = ("direct", "ir_unshadowed", "ir_shadowed", "manylights", "flc", "ssdo", "dss", "val_clustered",
+                   "visibility_gates")
 
 
 def _csv(text: str) -> list[str]:
