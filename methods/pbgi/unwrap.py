@@ -1,0 +1,164 @@
+"""Lightmap UV unwrap of `pbgi`: planar projection by dominant normal axis, then shelf packing.
+
+The article projects every face on the dominant axis of its normal and packs the small
+charts into one texture. Here a chart is a connected set of triangles (sharing a welded edge)
+with the same dominant axis and sign: locally a height field over that axis plane (planar
+walls become one chart, a sphere six caps). A patch can still fold over itself globally (a
+helical ramp); the method detects that on the GL and passes such charts back in `split`. Every chart is mapped with
+one uniform scale `s` (texels per metre, the same for all charts) into a box of
+ceil(s w) + 2 by ceil(s h) + 2 texels, the chart starting one texel inside its box: the
+conservatively rasterised chart and the bilinear footprint of any point of it stay inside its
+own box, so charts never bleed into each other. `s` is the largest scale (bisection) at which
+a shelf packing of the boxes fits the lightmap.
+
+All coordinates are the GPU's re-centred float coordinates; the chart map of triangle t is the
+affine map uv = (row0 . p + row0.w, row1 . p + row1.w) in texel units (texel (i, j) covers
+[i, i+1] x [j, j+1]).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+
+class LightmapTooSmall(ValueError):
+    """The charts cannot be packed into the requested lightmap resolution."""
+
+
+@dataclass
+class Unwrap:
+    resolution: int
+    scale: float                 # texels per metre, all charts
+    chart_of_triangle: np.ndarray   # (T,) int64
+    chart_axis: np.ndarray          # (C,) dominant axis 0/1/2
+    chart_area_m2: np.ndarray       # (C,) true surface area of the chart
+    chart_box: np.ndarray           # (C, 4) int64 x0, y0, width, height of the chart's box in texels
+    rows: np.ndarray                # (T, 2, 4) float64 affine texel map per triangle
+    face_normal: np.ndarray         # (T, 3) unit geometric normals
+    axis_cosine: np.ndarray         # (T,) |n[axis of its chart]| >= 1/sqrt(3)
+
+    @property
+    def chart_count(self) -> int:
+        return int(len(self.chart_axis))
+
+
+def _weld(vertices: np.ndarray, tolerance: float) -> np.ndarray:
+    keys = np.round(vertices / tolerance).astype(np.int64)
+    _, ids = np.unique(keys, axis=0, return_inverse=True)
+    return ids.reshape(-1)
+
+
+def find_charts(vertices: np.ndarray, faces: np.ndarray, tolerance: float, split=()):
+    """Chart id per triangle, chart axis, face normals and areas. Charts listed in `split`
+    (ids of an earlier call with the same arguments) become one chart per triangle."""
+    tri = vertices[faces]
+    cross = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    double_area = np.linalg.norm(cross, axis=1)
+    normal = cross / np.maximum(double_area, 1e-300)[:, None]
+    axis = np.argmax(np.abs(normal), axis=1)
+    key = axis * 2 + (normal[np.arange(len(faces)), axis] >= 0)
+    wid = _weld(vertices, tolerance)[faces]                       # (T, 3) welded vertex ids
+    edges = np.concatenate([wid[:, [0, 1]], wid[:, [1, 2]], wid[:, [2, 0]]])
+    edges.sort(axis=1)
+    owner = np.tile(np.arange(len(faces)), 3)
+    rows = np.column_stack([edges, np.tile(key, 3)])
+    order = np.lexsort(rows.T[::-1])
+    rows, owner = rows[order], owner[order]
+    same = np.all(rows[1:] == rows[:-1], axis=1)                  # consecutive triangles sharing an edge and a key
+    a, b = owner[:-1][same], owner[1:][same]
+    graph = coo_matrix((np.ones(len(a)), (a, b)), shape=(len(faces), len(faces)))
+    count, chart = connected_components(graph, directed=False)
+    split = np.asarray(sorted(set(int(c) for c in split)), dtype=np.int64)
+    if len(split):
+        alone = np.isin(chart, split)
+        chart = chart.copy()
+        chart[alone] = count + np.arange(int(alone.sum()))
+        _, chart = np.unique(chart, return_inverse=True)
+        count = int(chart.max()) + 1
+    chart_axis = np.zeros(count, dtype=np.int64)
+    chart_axis[chart] = axis
+    chart_area = np.bincount(chart, weights=0.5 * double_area, minlength=count)
+    return chart.astype(np.int64), chart_axis, normal, chart_area
+
+
+def shelf_pack(widths: np.ndarray, heights: np.ndarray, size: int):
+    """(x, y) of each box in a size x size square, tallest first on shelves; None if it does not fit."""
+    order = np.argsort(-heights, kind="stable")
+    pos = np.zeros((len(widths), 2), dtype=np.int64)
+    x = y = shelf = 0
+    for i in order:
+        w, h = int(widths[i]), int(heights[i])
+        if w > size:
+            return None
+        if x + w > size:
+            y += shelf
+            x = shelf = 0
+        if y + h > size:
+            return None
+        pos[i] = (x, y)
+        x += w
+        shelf = max(shelf, h)
+    return pos
+
+
+def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int, tolerance: float, split=()) -> Unwrap:
+    """Charts, packing and per-triangle texel maps for a `resolution`^2 lightmap (`split`: see find_charts)."""
+    vertices = np.asarray(vertices, dtype=np.float64)
+    faces = np.asarray(faces, dtype=np.int64)
+    chart, chart_axis, normal, chart_area = find_charts(vertices, faces, tolerance, split)
+    count = len(chart_axis)
+    u_axis = (chart_axis + 1) % 3
+    v_axis = (chart_axis + 2) % 3
+    corner_chart = np.repeat(chart, 3)
+    corners = vertices[faces.reshape(-1)]
+    cu = corners[np.arange(len(corners)), u_axis[corner_chart]]
+    cv = corners[np.arange(len(corners)), v_axis[corner_chart]]
+    lo_u = np.full(count, np.inf); hi_u = np.full(count, -np.inf)
+    lo_v = np.full(count, np.inf); hi_v = np.full(count, -np.inf)
+    np.minimum.at(lo_u, corner_chart, cu); np.maximum.at(hi_u, corner_chart, cu)
+    np.minimum.at(lo_v, corner_chart, cv); np.maximum.at(hi_v, corner_chart, cv)
+    extent_u, extent_v = hi_u - lo_u, hi_v - lo_v
+
+    def boxes(scale):
+        return (np.ceil(scale * extent_u).astype(np.int64) + 2, np.ceil(scale * extent_v).astype(np.int64) + 2)
+
+    largest = max(float(extent_u.max()), float(extent_v.max()), 1e-300)
+    hi = (resolution - 2) / largest
+    lo = hi * 1e-6
+    if shelf_pack(*boxes(lo), resolution) is None:
+        raise LightmapTooSmall(f"{count} charts do not fit a {resolution}^2 lightmap even at the smallest "
+                               f"texel density: raise lightmap_resolution")
+    if shelf_pack(*boxes(hi), resolution) is not None:
+        lo = hi
+    for _ in range(40):  # bisection on log scale: packing is monotone up to shelf effects
+        if hi / lo < 1.0 + 1e-4:
+            break
+        mid = np.sqrt(lo * hi)
+        if shelf_pack(*boxes(mid), resolution) is None:
+            hi = mid
+        else:
+            lo = mid
+    scale = lo
+    bw, bh = boxes(scale)
+    pos = shelf_pack(bw, bh, resolution)
+    rows = np.zeros((len(faces), 2, 4))
+    t = np.arange(len(faces))
+    rows[t, 0, u_axis[chart]] = scale
+    rows[t, 1, v_axis[chart]] = scale
+    rows[:, 0, 3] = (pos[chart, 0] + 1) - scale * lo_u[chart]
+    rows[:, 1, 3] = (pos[chart, 1] + 1) - scale * lo_v[chart]
+    axis_cos = np.abs(normal[t, chart_axis[chart]])
+    return Unwrap(resolution=int(resolution), scale=float(scale), chart_of_triangle=chart, chart_axis=chart_axis,
+                  chart_area_m2=chart_area, chart_box=np.column_stack([pos, bw, bh]), rows=rows,
+                  face_normal=normal, axis_cosine=axis_cos)
+
+
+def chart_image(unwrap_: Unwrap) -> np.ndarray:
+    """(resolution, resolution) int64 image [y, x]: the chart whose box holds each texel, -1 in none."""
+    img = np.full((unwrap_.resolution, unwrap_.resolution), -1, dtype=np.int64)
+    for c, (x0, y0, w, h) in enumerate(unwrap_.chart_box):
+        img[y0:y0 + h, x0:x0 + w] = c
+    return img
