@@ -52,7 +52,7 @@ class RunConfig:
     views: list | None = None                       # camera names; None: every camera of a scene
     params: dict = field(default_factory=dict)      # method -> list of param dicts (a grid of rows)
     references: bool = True                         # fetch/build Mitsuba references and metrics
-    reference_spp_cap: int = 256
+    reference_spp_cap: int = 4096                   # refinement stops earlier, at 1/10 of the best MSE
     progress: bool = True
     shadow_resolution: int = 1024
 
