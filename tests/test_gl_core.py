@@ -145,3 +145,29 @@ def test_both_stage_clocks_time_a_pass(gl_ctx, open_box, clock):
     finally:
         passes.release()
         gpu.release()
+
+
+@pytest.mark.parametrize("clock", ["gl_query", "finish_wall"])
+def test_harness_frame_and_stage_samples_per_clock(gl_ctx, open_box, monkeypatch, clock):
+    """finish_wall fences every stage, so wall times and stage times come from separate frames;
+    either way K timed frames give K wall samples and K samples per stage."""
+    from bench.harness import run_method
+    from methods.direct.method import DirectMethod
+    monkeypatch.setenv("GIBENCH_STAGE_CLOCK", clock)
+    calls = []
+    original = DirectMethod.render
+
+    def counting_render(self, frame, prof):
+        calls.append((frame.index, prof.enabled))
+        return original(self, frame, prof)
+
+    monkeypatch.setattr(DirectMethod, "render", counting_render)
+    result = run_method(gl_ctx, DirectMethod, open_box, "main", 32, 24, warmup=1, frames=3,
+                        shadow_resolution=128)
+    assert result.stage_clock == clock
+    assert len(result.frame_ms) == 3
+    assert result.stage_ms and all(len(v) == 3 for v in result.stage_ms.values())
+    if clock == "finish_wall":
+        assert [enabled for _, enabled in calls] == [True, False, False, False, True, True, True]
+    else:
+        assert len(calls) == 4 and all(enabled for _, enabled in calls)
