@@ -29,7 +29,7 @@ from bench.imageio import read_exr, write_exr
 from bench.method import SkipRow
 from bench.registry import MethodLoadError, load_method
 from bench.scene import SceneError, compute_facts
-from bench.versioning import git_commit, method_version
+from bench.versioning import git_commit, harness_version, method_version
 
 IMAGE_COMPONENTS = ("direct", "indirect", "combined")
 
@@ -101,7 +101,8 @@ def row_cache_key(scene, camera: str, method: str, version: str, params: dict, c
     payload = {"scene": scene.content_hash(), "camera": camera, "camera_def": scene.cameras[camera].to_dict(),
                "method": method, "method_version": version, "params": params, "width": cfg.width,
                "height": cfg.height, "frames": cfg.frames, "warmup": cfg.warmup, "seed": cfg.seed,
-               "shadow_resolution": cfg.shadow_resolution, "renderer": renderer, "stage_clock": stage_clock}
+               "shadow_resolution": cfg.shadow_resolution, "renderer": renderer, "stage_clock": stage_clock,
+               "harness": harness_version()}
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 

@@ -29,6 +29,11 @@ def method_version(method_cls) -> str:
     return h.hexdigest()[:16]
 
 
+def harness_version() -> str:
+    """Hash of the timing harness: a change in how frames are timed invalidates cached rows."""
+    return hashlib.sha256((Path(__file__).parent / "harness.py").read_bytes()).hexdigest()[:16]
+
+
 def git_commit(cwd: Path | None = None) -> str:
     try:
         out = subprocess.run(["git", "rev-parse", "HEAD"], cwd=cwd or Path(__file__).parent, capture_output=True,

@@ -5,5 +5,7 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/libLLVM-19.so* /usr/lib/*/libLLVM-19.so* 2>/dev/null | head -n 1)}"
-.venv/bin/gibench run "$@"
+# manylights with both VPL lobes: the report then shows, per scene, how far the flc lobe (what FLC
+# estimates without bias) is from the Lambertian bounce that Mitsuba computes.
+.venv/bin/gibench run --param manylights.emission=lambert,flc "$@"
 .venv/bin/gibench report runs/latest
