@@ -4,8 +4,8 @@ based on virtual point lights and topological information about the scene ...").
 
 Precomputation (`prepare`, untimed, CPU; see topology.py; cached per scene and knobs):
 voxelization of the enclosed empty space, its curvilinear skeleton with maximal-ball radii,
-segmentation of the skeleton (topology, curvature and coverage nodes), greedy *visibility
-clusters* (quasi-convex parts of the empty space: rooms, corridors, door openings) and one
+simplified (spur pruning), segmentation of the skeleton (topology, curvature and coverage
+nodes), greedy *visibility clusters* (quasi-convex parts of the empty space: rooms, corridors, door openings) and one
 *visibility gate* per segmented edge between two clusters: a disk at the middle of the edge,
 orthogonal to it, of radius min(maxball(n1), maxball(n2)) x `gate_radius_scale`.
 
@@ -19,17 +19,17 @@ Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
    found by a local bitonic sort in shared memory, compacted, and given a bounding box.
 3. `light_assignment` (LA): each VPL's visibility cluster; then per geometry cluster a bit mask
    of the VPLs that may light it: the VPLs of its own visibility cluster, and VPLs of another
-   cluster C whose cone through a gate joining C to it meets the cluster's bounding sphere
-   (brute force over VPLs, as in the paper; indirect dispatch over the clusters found).
+   cluster C whose cone through one of C's gates meets the cluster's bounding sphere (brute
+   force over VPLs, as in the paper; indirect dispatch over the clusters found).
 4. `gather` (IL): each pixel sums its cluster's VPLs with the Lambertian VPL term of
-   ir_unshadowed; a VPL from another visibility cluster counts only if the segment VPL -> pixel
-   crosses one of the gates between the two clusters.
+   ir_unshadowed; a VPL from another visibility cluster C counts only if the pixel is in its
+   cone through one of C's gates: the segment VPL -> pixel crosses that gate's disk.
 
 Visibility is therefore V = 1 inside a visibility cluster (quasi-convexity: no shadow test),
-V = [segment crosses a gate] between neighbouring clusters, V = 0 otherwise. With the same
-VPLs the result is <= `ir_unshadowed` at every pixel, equal where the scene is one cluster
-(a sphere seen from inside: rho^2 I / (pi R^2)). The light assignment culls exactly: it never
-drops a VPL the final segment test would accept (conservative cone/sphere test).
+V = [segment crosses a gate of the VPL's cluster] otherwise. With the same VPLs the result is
+<= `ir_unshadowed` at every pixel, equal where the scene is one cluster (a sphere seen from
+inside: rho^2 I / (pi R^2)). The light assignment culls exactly: it never drops a VPL the final
+segment test would accept (conservative cone/sphere test).
 
 Paper formula corrections and readings (checked against the invariant each must satisfy):
 - Gather: the paper writes L(P->V) = sum f_r G V L(P_i) with L(P_i) "the intensity of the VPL".
@@ -42,22 +42,43 @@ Paper formula corrections and readings (checked against the invariant each must 
   (L1 = Lk) the distance to the chord is the distance to L1.
 - Which node is cut: the most curved node first (recursively); for coverage, the first
   uncovered node walking from L1 (so the part before it is covered by L1's ball).
-- alpha: a neighbour joins when |r - r_max(C)| <= alpha/100 r_max(C), r_max the largest radius
-  already in the cluster (alpha = 20 in the paper).
-- Cones light "the neighbour visibility cluster that does not contain the VPL" (Fig. 11): only
-  the clusters adjacent to the VPL's through a gate are tested, not every other cluster (a
-  cone continues through walls behind the neighbour).
+- Skeleton simplification (not spelled out in the paper, which takes a *filtered* curvilinear
+  skeleton from cubical-complex thinning [20]): scikit-image's thinning keeps end points, so it
+  grows a spur towards every convex corner and edge of a room; with maximal balls shrinking
+  along it, each spur became its own small visibility cluster reachable only through a small
+  gate. Before segmentation every terminal branch all of whose nodes its junction sees in a
+  straight line through the empty space is removed (topology.prune_spurs; one pass over the
+  original branches, so a room behind a door, which has junctions of its own, is never pruned).
+- alpha: "add all neighbors of m ... for which radius of maximal balls does not differ more than
+  alpha % of the maximal radius contained in the cluster" / "how similar two maximal balls must
+  be": the two balls compared are the popped node m's and its neighbour k's, the tolerance is
+  alpha % of the cluster's largest radius: |r_k - r_m| <= alpha/100 r_max(C) (alpha = 20 in the
+  paper). Comparing r_k with r_max(C) itself (the earlier reading) cut every line whose radius
+  shrinks gradually into many clusters.
+- Which view samples a cone lights: the paper tests the cones "against view samples contained
+  in other clusters" (V) and "against all cones created from the combination of the VPL and a
+  visibility gate" (V.C); the gates combined with a VPL of cluster C are those separating C from
+  its neighbours. So a view sample of any cluster D != C is lit when it lies in such a cone
+  (beyond the gate: the segment crosses the disk), not only when D is the neighbour across that
+  gate (the earlier reading, from Fig. 11's caption, which shows one example; with it a door
+  that forms its own cluster blocked all light between two rooms). A cone may continue through
+  a wall behind the neighbour; the light assignment and gather accept that approximation, as
+  the paper does (measured on `rooms`: the room two offset doors away stays darker than
+  ir_shadowed).
+- Voxel -> cluster: as the paper, geodesically nearest skeleton node, then the nearest extremum
+  of its line, then that segmented node's cluster (not maximal-ball containment).
 - Light lists: the paper stores (VPL, gate) pairs per geometry cluster; here a VPL bit mask,
-  and the fragment tests every gate joining the two clusters, which accepts exactly the pairs
-  whose segment crosses a gate and never counts a VPL twice when two gates join the same
-  clusters.
+  and the fragment tests every gate of the VPL's cluster, which accepts exactly the pairs
+  whose segment crosses one of them and never counts a VPL twice when its segment crosses
+  two gates.
 
-Known behaviour (the paper's "results slightly darker than the reference", amplified on small
-voxelized rooms): the voxel skeleton of a box has branches towards its corners and edges whose
-maximal balls shrink, so they become their own small clusters (the alpha rule), and the
-surfaces near them are reached from the main cluster only through small gates. With one hop
-of gates (Fig. 11) a VPL cannot light a cluster two gates away (a door opening that forms its
-own cluster between two rooms blocks all light between them).
+Known behaviour (the paper's "results slightly darker than the reference ... since gates are
+only disks, we still miss a lot of VPLs"): narrow spaces beside objects (between a block and a
+wall) become clusters of their own, reached from the main one only through disks of the
+narrow space's maximal-ball radius. With the same VPLs at 128x96 and default settings, mean
+indirect / ir_shadowed's: cornell_spot 0.64, rooms 0.59, hidden_bounce 0.60 (cornell_spot at
+voxel_resolution 32, one room cluster: 1.02). The cluster count, hence the darkening, depends
+on voxel_resolution through the voxel skeleton's shape.
 
 | parameter          | default | range        | meaning                                                    |
 |--------------------|---------|--------------|------------------------------------------------------------|

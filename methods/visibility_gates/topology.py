@@ -7,14 +7,16 @@
    Lee et al. 1994: topology preserving and centred, like the paper's cubical-complex thinning
    [20]); the radius of each node's maximal ball comes from the Euclidean distance transform.
    The skeleton voxels become a graph (26-adjacency, minus the long side of every voxel
-   triangle, so a voxel staircase is a line and not a chain of spurious junctions).
+   triangle, so a voxel staircase is a line and not a chain of spurious junctions), then
+   `prune_spurs` removes the terminal branches their junction sees in a straight line (the
+   spurs an end-point-preserving thinning grows towards convex corners and edges).
 3. `segment`: topology nodes (degree != 2), then curvature nodes (curv = dist(n, L1 Lk) /
    maxball(n) > 1, the most curved node first, recursively), then coverage nodes (a node in no
    maximal ball of its line's extrema, recursively); unclassified nodes are dropped and each
    is associated with the nearest extremum (arc length) of its line.
 4. `cluster`: the paper's greedy visibility clusters (largest ball first, neighbours that are
-   not curvature nodes and whose radius is within alpha of the cluster's largest, plus every node
-   reachable inside the popped node's maximal ball).
+   not curvature nodes and whose radius differs from the popped node's by at most alpha % of the
+   cluster's largest, plus every node reachable inside the popped node's maximal ball).
 5. `gates`: one disk per segmented edge joining two clusters: centre at the middle of the edge,
    normal along it, radius min(maxball(n1), maxball(n2)).
 6. `cluster_grid`: each enclosed empty voxel gets the cluster of its geodesically nearest
@@ -131,6 +133,45 @@ def skeleton_graph(enclosed: np.ndarray):
     return coords, graph
 
 
+def _segment_in_space(space: np.ndarray, a: np.ndarray, b: np.ndarray) -> bool:
+    """Does the straight segment between voxel centres a and b stay inside `space` (sampled at
+    a quarter voxel)?"""
+    steps = max(int(np.ceil(4.0 * np.abs(b - a).max())), 1)
+    t = np.linspace(0.0, 1.0, steps + 1)[:, None]
+    v = np.floor(a + t * (b - a) + 0.5).astype(np.int64)
+    return bool(space[tuple(v.T)].all())
+
+
+def prune_spurs(coords: np.ndarray, graph, space: np.ndarray):
+    """Skeleton simplification before segmentation: drop every terminal branch (an end node up
+    to, excluding, the first node of degree >= 3) all of whose nodes the junction sees in a
+    straight line through the empty space. Such a branch bounds no region hidden from the rest
+    of the skeleton (a convex corner or edge of a room, a straight dead end): it is the spur a
+    voxel thinning that preserves end points grows towards every convex corner, which a
+    filtered curvilinear skeleton does not have. One pass over the original branches only, so a
+    room behind a door (whose own skeleton has junctions) is never pruned away.
+    Returns (coords, graph) of the kept nodes."""
+    nbrs = _neighbours(graph)
+    degree = np.diff(graph.indptr)
+    keep = np.ones(len(coords), bool)
+    for tip in np.flatnonzero(degree == 1):
+        branch, prev, cur = [int(tip)], -1, int(tip)
+        while True:
+            nxt = [int(x) for x in nbrs[cur] if x != prev]
+            if len(nxt) != 1:
+                break
+            prev, cur = cur, nxt[0]
+            if degree[cur] != 2:
+                break
+            branch.append(cur)
+        if degree[cur] < 3:  # an isolated path (two end nodes, no junction): nothing to prune into
+            continue
+        if all(_segment_in_space(space, coords[cur].astype(float), coords[b].astype(float)) for b in branch):
+            keep[branch] = False
+    sub = graph[keep][:, keep].tocsr()
+    return coords[keep], sub
+
+
 # ----------------------------------------------------------------------------- 3. segmentation
 def _neighbours(graph) -> list:
     return [graph.indices[graph.indptr[i]:graph.indptr[i + 1]] for i in range(graph.shape[0])]
@@ -245,7 +286,7 @@ def cluster(seg_nodes: np.ndarray, seg_edges: np.ndarray, pos, radius, kind, alp
             r_max = max(r_max, float(radius[m]))
             for k in nbrs[m]:
                 if k not in label and kind[k] != KIND_CURVATURE and \
-                        abs(float(radius[k]) - r_max) <= alpha_percent / 100.0 * r_max:
+                        abs(float(radius[k]) - float(radius[m])) <= alpha_percent / 100.0 * r_max:
                     stack.append(k)
             # every node inside m's maximal ball reachable from m (traversal kept inside the ball)
             seen, frontier = {m}, [m]
@@ -307,6 +348,7 @@ def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alp
                             f"(open scene: visibility clusters need closed rooms)")
     t = time.perf_counter()
     coords, graph = skeleton_graph(enclosed)
+    coords, graph = prune_spurs(coords, graph, enclosed)
     depth = ndimage.distance_transform_edt(enclosed)
     radius = np.maximum(depth[tuple(coords.T)] - 0.5, 0.5) * pitch  # centre to the voxelised surface
     pos = origin + (coords + 0.5) * pitch

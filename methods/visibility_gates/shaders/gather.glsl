@@ -1,8 +1,9 @@
 // Indirect lighting (paper V.D): every pixel sums the VPLs its geometry cluster was assigned,
 // with ir_unshadowed's Lambertian VPL term, term for term:
 //   L(x) = rho_x / pi * sum_k Phi_k / pi * <n_x, w>+ <n_k, -w>+ / max(eps, |y_k - x|)^2
-// A VPL of another visibility cluster counts only if the segment from it to the pixel crosses
-// one of the gates joining the two clusters (the final cone test).
+// A VPL of another visibility cluster counts only if the pixel lies in the light cone from the
+// VPL through one of the gates of the VPL's cluster, i.e. the segment VPL -> pixel crosses that
+// gate's disk (the final cone test, paper V.D); the pixel may be in any other cluster (V).
 #include "fullscreen.glsl"
 #include "../../ir_unshadowed/shaders/vpl_records.glsl"
 #include "topology.glsl"
@@ -47,7 +48,7 @@ void main() {
                 bool through = false;
                 ivec2 range = adjacency_range[c];
                 for (int e = range.x; e < range.y && !through; ++e)
-                    through = adjacency[e].x == d && segment_crosses_gate(adjacency[e].y, v.position.xyz, x);
+                    through = segment_crosses_gate(adjacency[e].y, v.position.xyz, x);
                 if (!through) continue;
             }
             float dc = max(u_eps, dist);

@@ -1,8 +1,9 @@
 // Light assignment, step 3 (paper V.C): for every geometry cluster and every word of 32 VPLs,
 // a bit mask of the VPLs that may light the cluster: a VPL in the cluster's own visibility
 // cluster always; a VPL of another visibility cluster C when the cone from it through one of
-// the gates joining C to the cluster's visibility cluster meets the cluster's bounding sphere
-// (the sphere around its bounding box). Brute force over the VPLs, as in the paper.
+// C's gates meets the cluster's bounding sphere (the sphere around its bounding box), whatever
+// cluster lies beyond that gate ("all cones created from the combination of the VPL and a
+// visibility gate", paper V.C). Brute force over the VPLs, as in the paper.
 #include "../../ir_unshadowed/shaders/vpl_records.glsl"
 #include "topology.glsl"
 layout(local_size_x = LA_GROUP) in;
@@ -29,7 +30,7 @@ void main() {
         vec3 y = vpls[k].position.xyz;
         ivec2 range = adjacency_range[c];
         for (int e = range.x; e < range.y; ++e) {
-            if (adjacency[e].x == d && cone_meets_sphere(adjacency[e].y, y, s, rho)) { mask |= 1u << b; break; }
+            if (cone_meets_sphere(adjacency[e].y, y, s, rho)) { mask |= 1u << b; break; }
         }
     }
     light_masks[g * u_words + word] = mask;
