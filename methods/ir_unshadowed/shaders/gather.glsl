@@ -26,18 +26,12 @@ void main() {
     vec3 sum = vec3(0.0);
     for (int k = u_vpl_first; k < u_vpl_end; ++k) {
         Vpl v = vpls[k];
-        vec3 d = v.position.xyz - x;  // x -> y
-        float dist = length(d);
-        if (dist <= 0.0 || v.flux.rgb == vec3(0.0)) continue;
-        vec3 w = d / dist;
-        float cos_x = dot(nx, w);
-        float cos_y = -dot(v.normal.xyz, w);
-        if (cos_x <= 0.0 || cos_y <= 0.0) continue;
+        vec3 transfer = vpl_transfer(v, x, nx, u_eps);
+        if (transfer == vec3(0.0)) continue;
 #if VPL_SHADOWS
         if (vpl_visibility(k, v, x, ng) == 0.0) continue;
 #endif
-        float dc = max(u_eps, dist);
-        sum += v.flux.rgb * (cos_x * cos_y / (dc * dc));
+        sum += transfer;
     }
     out_radiance = vec4(rho_x * (INV_PI * INV_PI) * sum, 1.0);
 }

@@ -24,6 +24,22 @@ ivec2 rsm_atlas_texel(uint i) {
     return ivec2(tile * res + uvec2(within % res, within / res));
 }
 
+// One VPL's unshadowed Lambertian transfer to receiver x (normal nx):
+//   Phi <n_x, w>+ <n_k, -w>+ / max(eps, |y_k - x|)^2,  w = (y_k - x) / |y_k - x|
+// (the one-bounce radiance is rho_x / pi^2 times the sum over VPLs); zero when either side
+// faces away. Every VPL gather (ir_*, val_clustered, visibility_gates) sums this term.
+vec3 vpl_transfer(Vpl v, vec3 x, vec3 nx, float eps) {
+    vec3 d = v.position.xyz - x;  // x -> y
+    float dist = length(d);
+    if (dist <= 0.0) return vec3(0.0);
+    vec3 w = d / dist;
+    float cos_x = dot(nx, w);
+    float cos_y = -dot(v.normal.xyz, w);
+    if (cos_x <= 0.0 || cos_y <= 0.0) return vec3(0.0);
+    float dc = max(eps, dist);
+    return v.flux.rgb * (cos_x * cos_y / (dc * dc));
+}
+
 // Rec. 709 luminance: positive weights, so it is > 0 whenever any channel of the flux is.
 float flux_luminance(vec3 flux) { return dot(max(flux, vec3(0.0)), vec3(0.2126, 0.7152, 0.0722)); }
 

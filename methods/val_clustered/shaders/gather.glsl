@@ -30,18 +30,10 @@ void main() {
     int start = u_vpl_first + ((r - u_vpl_first % stride) % stride + stride) % stride;
     vec3 sum = vec3(0.0);
     for (int k = start; k < u_vpl_end; k += stride) {
-        Vpl v = vpls[k];
-        vec3 d = v.position.xyz - x;
-        float dist = length(d);
-        if (dist <= 0.0 || v.flux.rgb == vec3(0.0)) continue;
-        vec3 w = d / dist;
-        float cos_x = dot(nx, w);
-        float cos_y = -dot(v.normal.xyz, w);
-        if (cos_x <= 0.0 || cos_y <= 0.0) continue;
+        vec3 transfer = vpl_transfer(vpls[k], x, nx, u_eps);
+        if (transfer == vec3(0.0)) continue;
         float vis = texelFetch(u_visibility, ivec3(px, vpl_cluster[k]), 0).r;
-        if (vis == 0.0) continue;
-        float dc = max(u_eps, dist);
-        sum += v.flux.rgb * (cos_x * cos_y / (dc * dc) * vis);
+        sum += transfer * vis;
     }
     sum *= float(stride);
     if (u_apply_albedo) sum *= texelFetch(u_gbuffer_albedo, px, 0).rgb * (INV_PI * INV_PI);

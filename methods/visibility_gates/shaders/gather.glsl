@@ -36,13 +36,8 @@ void main() {
             mask &= mask - 1u;
             int k = int(word) * 32 + b;
             Vpl v = vpls[k];
-            vec3 dv = v.position.xyz - x;  // x -> y
-            float dist = length(dv);
-            if (dist <= 0.0) continue;
-            vec3 w = dv / dist;
-            float cos_x = dot(nx, w);
-            float cos_y = -dot(v.normal.xyz, w);
-            if (cos_x <= 0.0 || cos_y <= 0.0) continue;
+            vec3 transfer = vpl_transfer(v, x, nx, u_eps);
+            if (transfer == vec3(0.0)) continue;
             int c = vpl_cluster[k];
             if (c != d) {
                 bool through = false;
@@ -51,8 +46,7 @@ void main() {
                     through = segment_crosses_gate(adjacency[e].y, v.position.xyz, x);
                 if (!through) continue;
             }
-            float dc = max(u_eps, dist);
-            sum += v.flux.rgb * (cos_x * cos_y / (dc * dc));
+            sum += transfer;
         }
     }
     out_radiance = vec4(rho_x * (INV_PI * INV_PI) * sum, 1.0);
