@@ -67,13 +67,19 @@ def cmd_list(args) -> int:
     return 0
 
 
-def cmd_run(args) -> int:
-    from bench.runner import RunConfig, run
+def _known_methods(methods: list[str]) -> bool:
+    """False (and a one-line message) when a method name is not registered."""
     from bench.registry import list_methods
-    methods = _csv(args.methods)
     unknown = [m for m in methods if m not in list_methods()]
     if unknown:
         print(f"gibench: unknown method(s) {', '.join(unknown)}; registered: {', '.join(list_methods())}", file=sys.stderr)
+    return not unknown
+
+
+def cmd_run(args) -> int:
+    from bench.runner import RunConfig, run
+    methods = _csv(args.methods)
+    if not _known_methods(methods):
         return 2
     width, height = args.res
     cfg = RunConfig(scenes=_csv(args.scenes), methods=methods, width=width, height=height, frames=args.frames,
@@ -104,12 +110,9 @@ def cmd_report(args) -> int:
 
 
 def cmd_sweep(args) -> int:
-    from bench.registry import list_methods
     from bench.sweep import run_sweep
     methods = _csv(args.methods)
-    unknown = [m for m in methods if m not in list_methods()]
-    if unknown:
-        print(f"gibench: unknown method(s) {', '.join(unknown)}; registered: {', '.join(list_methods())}", file=sys.stderr)
+    if not _known_methods(methods):
         return 2
     width, height = args.res
     table, pareto, runner = run_sweep(

@@ -27,7 +27,7 @@ import numpy as np
 from bench import results as store
 from bench.imageio import read_exr, write_exr
 from bench.method import SkipRow
-from bench.registry import MethodLoadError, load_method
+from bench.registry import load_method
 from bench.scene import SceneError, compute_facts
 from bench.versioning import git_commit, harness_version, method_version
 

@@ -54,19 +54,24 @@ def grid_quad(origin, u, v, n):
     return verts, faces
 
 
-def make_grid_box(n=6, light_position=(0.2, 1.2, 0.1), intensity=2.0):
-    """The open box of make_open_box with each wall an n x n grid (6 n^2 triangles)."""
-    from bench.scene import Camera, PointLight, Scene
-    parts = [grid_quad([-1, 0, -1], [0, 0, 2], [2, 0, 0], n),   # floor, normal +y
-             grid_quad([-1, 0, -1], [2, 0, 0], [0, 2, 0], n),   # back wall, normal +z
-             grid_quad([-1, 0, -1], [0, 2, 0], [0, 0, 2], n)]   # left wall, normal +x
-    colours = ([0.8, 0.8, 0.8], [0.2, 0.8, 0.2], [0.8, 0.2, 0.2])
+def scene_from_parts(name, parts, colours, lights, cameras):
+    """A Scene from (vertices, faces) parts, each with one albedo colour."""
+    from bench.scene import Scene
     verts, faces, albedo, offset = [], [], [], 0
     for (v, f), col in zip(parts, colours):
         verts.append(v)
         faces.append(f + offset)
         albedo.append(np.tile(col, (len(f), 1)))
         offset += len(v)
-    return Scene.build("grid_box", np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo),
-                       [PointLight(light_position, [intensity] * 3)],
-                       {"main": Camera([0, 1, 3.5], [0, 0.8, 0], fov_y_deg=50)})
+    return Scene.build(name, np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo), lights, cameras)
+
+
+def make_grid_box(n=6, light_position=(0.2, 1.2, 0.1), intensity=2.0):
+    """The open box of make_open_box with each wall an n x n grid (6 n^2 triangles)."""
+    from bench.scene import Camera, PointLight
+    parts = [grid_quad([-1, 0, -1], [0, 0, 2], [2, 0, 0], n),   # floor, normal +y
+             grid_quad([-1, 0, -1], [2, 0, 0], [0, 2, 0], n),   # back wall, normal +z
+             grid_quad([-1, 0, -1], [0, 2, 0], [0, 0, 2], n)]   # left wall, normal +x
+    colours = ([0.8, 0.8, 0.8], [0.2, 0.8, 0.2], [0.8, 0.2, 0.2])
+    return scene_from_parts("grid_box", parts, colours, [PointLight(light_position, [intensity] * 3)],
+                            {"main": Camera([0, 1, 3.5], [0, 0.8, 0], fov_y_deg=50)})

@@ -3,7 +3,6 @@ import json
 import shutil
 
 import numpy as np
-import pandas as pd
 import pytest
 
 from bench.gate import compare_runs, error_check, smallest_p, timing_check

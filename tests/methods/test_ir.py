@@ -6,11 +6,11 @@ import pytest
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, read_rgb
 from bench.harness import run_method
 from bench.method import ParamError, resolve_params
-from bench.scene import Camera, Scene, SpotLight
+from bench.scene import Camera, SpotLight
 from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.ir_unshadowed.method import InstantRadiosityUnshadowed
 from methods.manylights.method import ManyLights
-from tests.conftest import grid_quad, make_grid_box, make_open_box
+from tests.conftest import grid_quad, make_grid_box, make_open_box, scene_from_parts
 
 W = H = 64
 
@@ -22,15 +22,9 @@ def make_occluder_scene(n=4, spot_target=(0.0, 1.4, -1.0)):
              grid_quad([-1, 0, -1], [2, 0, 0], [0, 2, 0], n),          # back wall, normal +z
              grid_quad([-0.6, 0, -0.5], [1.2, 0, 0], [0, 0.4, 0], 1)]  # panel, 0.5 m from the wall
     colours = ([0.8, 0.8, 0.8], [0.8, 0.8, 0.8], [0.5, 0.5, 0.5])
-    verts, faces, albedo, offset = [], [], [], 0
-    for (v, f), col in zip(parts, colours):
-        verts.append(v)
-        faces.append(f + offset)
-        albedo.append(np.tile(col, (len(f), 1)))
-        offset += len(v)
     light = SpotLight([0, 1.2, 1.5], spot_target, [20.0] * 3, cutoff_angle_deg=25)
-    return Scene.build("occluder", np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo),
-                       [light], {"main": Camera([0, 1.6, 2.8], [0, 0.3, -0.3], fov_y_deg=50)})
+    return scene_from_parts("occluder", parts, colours, [light],
+                            {"main": Camera([0, 1.6, 2.8], [0, 0.3, -0.3], fov_y_deg=50)})
 
 
 def render_frame(ctx, method_cls, scene, params, seed=0, index=0):

@@ -16,7 +16,7 @@ pytestmark = pytest.mark.mitsuba
 
 from bench.scene import Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight  # noqa: E402
 from reference.api import build_references, get_reference  # noqa: E402
-from tests.conftest import grid_quad, make_open_box  # noqa: E402
+from tests.conftest import grid_quad, make_open_box, scene_from_parts  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -77,15 +77,8 @@ def closed_box_scene() -> Scene:
     parts += [grid_quad(o, x, z, m), grid_quad(o + y, z, x, m), grid_quad(o, y, z, m), grid_quad(o + x, z, y, m),
               grid_quad(o, x, y, m), grid_quad(o + z, y, x, m)]
     colours += [(0.7, 0.7, 0.3)] * 6
-    verts, faces, albedo, offset = [], [], [], 0
-    for (v, f), col in zip(parts, colours):
-        verts.append(v)
-        faces.append(f + offset)
-        albedo.append(np.tile(col, (len(f), 1)))
-        offset += len(v)
-    return Scene.build("closed_box", np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo),
-                       [PointLight([0.3, 0.25, 0.35], [3.0, 3.0, 3.0])],
-                       {"main": Camera([0.6, 0.3, 0.95], [-0.3, -0.6, -0.5], fov_y_deg=75)})
+    return scene_from_parts("closed_box", parts, colours, [PointLight([0.3, 0.25, 0.35], [3.0, 3.0, 3.0])],
+                            {"main": Camera([0.6, 0.3, 0.95], [-0.3, -0.6, -0.5], fov_y_deg=75)})
 
 
 # ---------------------------------------------------------------------------- conversion

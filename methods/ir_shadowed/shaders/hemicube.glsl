@@ -4,21 +4,13 @@
 // is injected from Python.
 #ifndef HEMICUBE_GLSL
 #define HEMICUBE_GLSL
+#include "common.glsl"
 #include "../../ir_unshadowed/shaders/vpl_records.glsl"
-
-// Orthonormal t, b completing the unit normal n (Duff et al. 2017, branchless).
-void hemicube_basis(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
 
 // Face f's viewing axis `axis` and image-plane axes `right`, `up`.
 void hemicube_face(int f, vec3 n, out vec3 axis, out vec3 right, out vec3 up) {
     vec3 t, b;
-    hemicube_basis(n, t, b);
+    orthonormal_basis(n, t, b);
     if (f == 0)      { axis = n;  right = t; up = b; }
     else if (f == 1) { axis = t;  right = n; up = b; }
     else if (f == 2) { axis = -t; right = n; up = b; }
@@ -30,7 +22,7 @@ void hemicube_face(int f, vec3 n, out vec3 axis, out vec3 right, out vec3 up) {
 // -1 for directions behind the VPL's plane whose major axis is -n (no face holds them).
 int hemicube_lookup(vec3 n, vec3 rel, out vec2 uv) {
     vec3 t, b;
-    hemicube_basis(n, t, b);
+    orthonormal_basis(n, t, b);
     vec3 l = vec3(dot(rel, t), dot(rel, b), dot(rel, n));
     vec3 a = abs(l);
     int f;

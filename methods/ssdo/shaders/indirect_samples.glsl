@@ -24,15 +24,6 @@ uniform uint u_rand;             // per-frame random value
 #if defined FRAGMENT_SHADER
 layout(location = 0) out vec4 out_radiance;
 
-// Orthonormal tangent frame around unit n (Duff et al. 2017, branchless).
-void tangent_frame(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
 void main() {
     ivec2 px = ivec2(gl_FragCoord.xy);
     vec4 p = texelFetch(u_gbuffer_position, px, 0);
@@ -43,7 +34,7 @@ void main() {
     vec3 rho_x = texelFetch(u_gbuffer_albedo, px, 0).rgb;
     float depth_x = (u_view_proj * vec4(x, 1.0)).w;
     vec3 t, b;
-    tangent_frame(nx, t, b);
+    orthonormal_basis(nx, t, b);
 
     ivec2 cell = px % u_pattern_size;
     uint k = uint(cell.x + u_pattern_size * cell.y);

@@ -19,7 +19,7 @@ void main() {
     vpl_cluster[k] = c;
     if (live) atomicAdd(val_vpl_count[c], 1u);
     vec3 t, b;
-    val_basis(vals[c].normal.xyz, t, b);
+    orthonormal_basis(vals[c].normal.xyz, t, b);
     vec3 rel = v.position.xyz - vals[c].position.xyz;
     float s = dot(rel, t), r = dot(rel, b);
     v_out0 = vec4(s, r, -s, -r);

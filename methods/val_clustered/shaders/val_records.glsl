@@ -2,6 +2,7 @@
 // k-means clustering distance and the VAL's tangent frame. Shared by every VAL pass.
 #ifndef VAL_RECORDS_GLSL
 #define VAL_RECORDS_GLSL
+#include "common.glsl"
 #include "../../ir_unshadowed/shaders/vpl_records.glsl"
 
 struct Val {
@@ -38,15 +39,6 @@ int nearest_val(vec3 p, vec3 n) {
     return best;
 }
 
-// Orthonormal t, b completing the unit normal n (Duff et al. 2017, branchless).
-void val_basis(vec3 n, out vec3 t, out vec3 b) {
-    float s = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (s + n.z);
-    float c = n.x * n.y * a;
-    t = vec3(1.0 + s * n.x * n.x * a, s * c, -s * n.x);
-    b = vec3(c, s + n.y * n.y * a, -n.y);
-}
-
 // The paraboloid map's centre: the VAL centre lifted off its surface along its normal.
 uniform float u_val_lift;
 vec3 val_origin(Val c) { return c.position.xyz + c.normal.xyz * u_val_lift; }
@@ -55,7 +47,7 @@ vec3 val_origin(Val c) { return c.position.xyz + c.normal.xyz * u_val_lift; }
 // and the cosine to the VAL normal (`cos_theta` < 0: behind the VAL's plane, outside the map).
 vec2 paraboloid_uv(Val c, vec3 rel, out float cos_theta) {
     vec3 t, b;
-    val_basis(c.normal.xyz, t, b);
+    orthonormal_basis(c.normal.xyz, t, b);
     vec3 l = vec3(dot(rel, t), dot(rel, b), dot(rel, c.normal.xyz)) / max(length(rel), 1e-30);
     cos_theta = l.z;
     return l.xy / max(1.0 + l.z, 1e-6);
