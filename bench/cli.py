@@ -1,4 +1,10 @@
-"""`gibench` command line: run, list, report, gate, reference, sweep."""
+"""`gibench` command line: run, list, report, gate, reference, sweep.
+
+Exit codes: 0 success; 1 nothing useful produced (every row of a run failed), a gate
+regression, or a missing dependency (Mitsuba); 2 bad input (one line naming the culprit: a
+scene, a parameter, an unusable --out, a corrupt results table, a gate that compared nothing);
+130 interrupted (re-run the same command to resume, with or without --force).
+"""
 from __future__ import annotations
 
 import argparse
@@ -90,6 +96,15 @@ def cmd_run(args) -> int:
     df, runner = run(cfg, log=lambda m: print(m, file=sys.stderr))
     print(runner.summary())
     print(f"results: {runner.run_dir / 'results.csv'}")
+    return _nothing_useful(runner)
+
+
+def _nothing_useful(runner) -> int:
+    """1 (and one line) when every row of the run failed, else 0."""
+    c = runner.counts
+    if c["failed"] and not (c["ok"] or c["cached"] or c["resumed"] or c["skipped"]):
+        print(f"gibench: every row failed ({c['failed']} rows): nothing was measured", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -124,24 +139,29 @@ def cmd_sweep(args) -> int:
     print(f"{len(table)} sweep points, {len(pareto)} on the Pareto fronts")
     print(f"sweep: {runner.run_dir / 'sweep.csv'}")
     print(f"pareto: {runner.run_dir / 'pareto.csv'}")
-    return 0
+    return _nothing_useful(runner)
 
 
 def cmd_gate(args) -> int:
     from bench.gate import compare_runs
-    result = compare_runs(Path(args.baseline), Path(args.candidate), time_threshold=args.time_threshold,
+    result = compare_runs(_csv(args.baseline), _csv(args.candidate), time_threshold=args.time_threshold,
                           error_threshold=args.error_threshold, alpha=args.alpha,
-                          compare_changed_versions=args.compare_changed_versions)
+                          compare_changed_versions=args.compare_changed_versions, relative_to=args.relative_to,
+                          correction=args.correction, min_runs=args.min_runs)
     print(result.markdown())
     return result.exit_code
 
 
 def cmd_reference(args) -> int:
-    from reference.api import build_references
+    from reference.api import ReferenceUnavailable, build_references
     from bench.corpus import load_scene
     width, height = args.res
     scenes = [load_scene(s) for s in _csv(args.scenes)]
-    build_references(scenes, width=width, height=height, processes=args.processes, spp_cap=args.spp)
+    try:
+        build_references(scenes, width=width, height=height, processes=args.processes, spp_cap=args.spp)
+    except ReferenceUnavailable as exc:
+        print(f"gibench: {str(exc).splitlines()[0] if str(exc) else 'Mitsuba 3 is unavailable'}", file=sys.stderr)
+        return 1
     return 0
 
 
@@ -180,13 +200,18 @@ def main(argv=None) -> int:
     p.set_defaults(func=cmd_report)
 
     p = sub.add_parser("gate", help="compare two runs; non-zero exit on a regression")
-    p.add_argument("baseline")
-    p.add_argument("candidate")
+    p.add_argument("baseline", help="run folder, or comma-separated run folders (repetitions; timing needs >= 3)")
+    p.add_argument("candidate", help="run folder, or comma-separated run folders (interleave them with the baseline's)")
     p.add_argument("--time-threshold", type=float, default=0.10)
     p.add_argument("--error-threshold", type=float, default=0.05)
     p.add_argument("--alpha", type=float, default=0.05)
     p.add_argument("--compare-changed-versions", action="store_true",
                    help="also compare rows whose method version changed (a PR editing a method), marked 'method changed'")
+    p.add_argument("--relative-to", default=None, metavar="METHOD",
+                   help="gate times relative to METHOD's time on the same view in the same run (cancels machine load)")
+    p.add_argument("--correction", choices=("holm", "bh"), default="holm",
+                   help="multiple-testing correction over rows: holm (family-wise error, default) or bh (FDR)")
+    p.add_argument("--min-runs", type=int, default=3, help="runs per side needed to test timing (default 3, >= 2)")
     p.set_defaults(func=cmd_gate)
 
     p = sub.add_parser("reference", help="Mitsuba references")
@@ -207,8 +232,12 @@ def main(argv=None) -> int:
     except (ValueError, FileNotFoundError, KeyError) as exc:
         # Bad input: one line naming the culprit, no traceback.
         msg = exc.args[0] if isinstance(exc, KeyError) and exc.args else exc
-        print(f"gibench: {msg}", file=sys.stderr)
+        print(f"gibench: {' '.join(str(msg).split())}", file=sys.stderr)
         return 2
+    except OSError as exc:  # the disk refused (full, read-only, permissions): one line, no traceback
+        where = f" ({exc.filename})" if getattr(exc, "filename", None) else ""
+        print(f"gibench: {exc.strerror or exc}{where}", file=sys.stderr)
+        return 1
 
 
 if __name__ == "__main__":

@@ -12,6 +12,12 @@ Columns: `<metric>.<component>` for every metric of `bench.metrics.METRICS` (mse
 dssim, flip_mean, flip_median, ciede2000; all lower is better). The display transforms of FLIP
 and of dssim/ciede2000 depend on the reference alone (its covered pixels of positive value are
 always inside the mask), so every method on a view is judged on the same scale.
+
+Besides the error metrics, `mean_ratio.<component>` is the mean of the method's image over the
+mean of the reference on the covered pixels (all channels): 1 is unbiased in the image mean, the
+figure the method issues quote ("FLC's indirect over the reference"). It is a bias figure, not an
+error (0.5 and 2 are equally wrong), so the gate does not gate on it; a black reference gives no
+column.
 """
 from __future__ import annotations
 
@@ -47,4 +53,15 @@ def evaluate_row(images: dict, refs: dict) -> dict:
                               tonemap_scale_value=tonemap_scale(reference, mask))
         for name, value in metrics.items():
             out[f"{name}.{column}"] = float(value)
+        ratio = mean_ratio(images[image_name], reference, mask)
+        if np.isfinite(ratio):  # a black reference has no ratio: the column is left out
+            out[f"mean_ratio.{column}"] = ratio
     return out
+
+
+def mean_ratio(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
+    """Mean of `image` over mean of `reference` on the masked pixels; NaN when the reference is black."""
+    ref_mean = float(np.asarray(reference, dtype=np.float64)[mask].mean()) if mask.any() else 0.0
+    if not ref_mean > 0.0:
+        return float("nan")
+    return float(np.asarray(image, dtype=np.float64)[mask].mean()) / ref_mean

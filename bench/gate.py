@@ -1,35 +1,51 @@
-"""The regression gate: `gibench gate BASELINE CANDIDATE` compares two runs row by row.
+"""The regression gate: `gibench gate BASELINE CANDIDATE` compares two sides row by row.
 
-Rows are matched on (scene, view, method, params, seed). For each matched row:
+Each side is one run folder or several (comma-separated on the command line): repetitions of
+the same command. Rows are matched on (scene name, view, method, params, seed, resolution); a
+row found only at another resolution is listed as not comparable. For each matched row:
 
 * Status: a baseline row that is not ok/cached is skipped (nothing to compare against); a
   candidate row that no longer renders (failed or skipped) where the baseline rendered is a
   regression.
 * Comparability: a different `method_version` (hash of the method's sources, shaders and the
-  shared GL core) or a different resolution makes the row *not comparable*: it is listed, it is
-  not a failure (asv's rule: results of edited code are never compared as if equal). Pass
-  `compare_changed_versions=True` to compare such rows anyway (each finding is then marked
-  "method changed"): that is the mode to gate a change *to* a method.
-* Timing: a regression when the ratio of median frame times (candidate / baseline, CPU wall
-  ms per frame with the GPU finished) exceeds 1 + time_threshold AND a one-sided Mann-Whitney
-  U test (scipy, candidate > baseline on the per-frame samples) gives p < alpha. With n and m
-  frames the smallest exact p is 1 / C(n + m, n): 3 vs 3 frames can never go below 0.05, so the
-  gate needs >= 4 timed frames per row for alpha = 0.05; the summary says when it cannot decide.
-  An improvement is the mirror image (ratio < 1 / (1 + threshold), p < alpha the other way).
-* Error: every `<metric>.<component>` column of bench.metrics.METRICS present in both runs; a
-  regression when candidate > baseline * (1 + error_threshold) and candidate - baseline exceeds
-  the metric's absolute floor (ERROR_ABS_FLOOR, so 0 vs 1e-12 is not a regression). A baseline
-  value of 0 with a candidate above the floor is a regression.
+  shared GL core), a different resolution, or different scene *content* (`scene_hash`: an
+  edited scene file keeps its name) makes the row *not comparable*: it is listed with the
+  reason, it is not a failure (asv's rule: results of edited code are never compared as if
+  equal). Pass `compare_changed_versions=True` to compare rows whose method changed anyway
+  (each finding is then marked "method changed"): that is the mode to gate a change *to* a
+  method. Different frames, warm-up or stage clock make the row's *timing* not comparable.
+* Timing, on repetitions: the unit of evidence is a run, not a frame. The K frames of one
+  process share that run's load (a run slowed by background load separates completely from
+  another at p ~ 0.004 on 5 vs 5 frames), so each run contributes one number per row: the
+  median of its frame times, or, with `relative_to=METHOD`, that median divided by the
+  median of METHOD's row on the same scene/view in the same run (load slows every method of
+  a run alike). Only rows *rendered* in a run count (a cached row repeats old numbers). With
+  at least `min_runs` (3) runs per side, a one-sided Welch t-test on the logarithms of those
+  numbers gives a p-value per row; the p-values of all rows are adjusted for multiple testing
+  (`correction`: "holm", family-wise error <= alpha, the default; or "bh", Benjamini-Hochberg
+  false-discovery rate, `scipy.stats.false_discovery_control`). A regression needs the ratio of
+  geometric means above 1 + time_threshold AND an adjusted p below alpha. Fewer runs: the row's
+  timing is listed as not tested, never as a pass or fail. Interleave the runs of the two
+  sides (A B A B A B) so that slow periods of the machine fall on both.
+* Error: every `<metric>.<component>` column of bench.metrics.METRICS present in both runs,
+  judged only when both rows were scored against the same references (same `reference_key`
+  and `reference_spp` of every reference the component uses; otherwise the component is not
+  comparable: refinement depends on which methods ran). MSE is compared after subtracting the
+  references' noise floor (E[(x - r)^2] = (x - mu)^2 + Var r), clamped at 0. A regression when
+  candidate > baseline * (1 + error_threshold) and candidate - baseline exceeds the metric's
+  absolute floor (ERROR_ABS_FLOOR, so 0 vs 1e-12 is not a regression).
 * Rows of the baseline missing from the candidate, and new rows, are listed, not failures (a
-  candidate may run a subset). No matched row at all is bad input.
+  candidate may run a subset).
 
-Exit code: 0 pass, 1 at least one regression, 2 bad input (missing run folder, no common row).
+Exit code: 0 pass, 1 at least one regression, 2 bad input or nothing compared (missing run
+folder, no common row, every common row not comparable).
 """
 from __future__ import annotations
 
 import json
 import math
 import re
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,7 +55,13 @@ from bench.metrics import METRICS
 from bench.results import load_results
 
 OK_STATUSES = ("ok", "cached")
+RENDERED_STATUSES = ("ok",)   # rows whose timing was measured in that run (not copied from the cache)
 TIMING_COLUMN = "samples.frame_ms"
+MIN_RUNS = 3
+CORRECTIONS = ("holm", "bh")
+# which references an error column's component was judged against (bench.evaluation.COMPARISONS)
+REFERENCE_PARTS = {"direct": ("direct",), "indirect": ("indirect_unshadowed",),
+                   "indirect_visible": ("indirect_visible",), "combined": ("direct", "indirect_visible")}
 # Absolute floors below which an error change is noise, not a regression: float32 images give
 # metric noise well below these; each is far below any error a GI method actually makes.
 ERROR_ABS_FLOOR = {"mse": 1e-10, "relmse": 1e-8, "smape": 1e-6, "dssim": 1e-6, "flip_mean": 1e-6,
@@ -65,7 +87,13 @@ class GateResult:
     time_threshold: float
     error_threshold: float
     alpha: float
+    correction: str = "holm"
+    min_runs: int = MIN_RUNS
+    relative_to: str | None = None
+    baseline_runs: int = 1
+    candidate_runs: int = 1
     compared: int = 0
+    timing_tested: int = 0
     baseline_rows: int = 0
     candidate_rows: int = 0
     regressions: list = field(default_factory=list)
@@ -74,7 +102,7 @@ class GateResult:
     missing: list = field(default_factory=list)          # rows of the baseline absent from the candidate
     new: list = field(default_factory=list)              # rows of the candidate absent from the baseline
     skipped_baseline: list = field(default_factory=list)  # (row, status) baseline rows not ok
-    undecidable_timing: list = field(default_factory=list)  # (row, ratio, n_base, n_cand, min_p)
+    undecidable_timing: list = field(default_factory=list)  # (row, ratio, runs base, runs cand, reason)
     notes: list = field(default_factory=list)
     error: str | None = None
     baseline_info: dict = field(default_factory=dict)
@@ -99,22 +127,27 @@ class GateResult:
         if self.missing:
             extra.append(f"{len(self.missing)} missing in candidate")
         if self.undecidable_timing:
-            extra.append(f"{len(self.undecidable_timing)} slower row(s) too few frames to test")
+            extra.append(f"timing of {len(self.undecidable_timing)} row(s) not tested")
         tail = f" ({', '.join(extra)})" if extra else ""
         if self.compared == 0:
             return f"**Verdict: PASS, but nothing was compared**{tail}"
-        return f"**Verdict: PASS** — {self.compared} row(s) compared, no regression{tail}"
+        timed = f" (timing of {self.timing_tested} tested)" if self.timing_tested else ""
+        return f"**Verdict: PASS** — {self.compared} row(s) compared{timed}, no regression{tail}"
 
     def markdown(self) -> str:
         head = "FAIL" if self.exit_code == 1 else ("ERROR" if self.exit_code == 2 else "PASS")
         lines = [f"## gibench gate: {head}", ""]
         lines.append(f"- baseline: `{self.baseline_dir}` ({_describe(self.baseline_info, self.baseline_rows)})")
         lines.append(f"- candidate: `{self.candidate_dir}` ({_describe(self.candidate_info, self.candidate_rows)})")
-        lines.append(f"- timing: regression when median frame time ratio > {1 + self.time_threshold:.3g} "
-                     f"(+{self.time_threshold * 100:.3g}%) and "
-                     f"one-sided Mann-Whitney p < {self.alpha:g}")
+        what = (f"per-run median frame time relative to `{self.relative_to}` in the same run" if self.relative_to
+                else "per-run median frame time")
+        lines.append(f"- timing ({self.baseline_runs} vs {self.candidate_runs} run(s); {what}): regression when the "
+                     f"ratio of geometric means > {1 + self.time_threshold:.3g} (+{self.time_threshold * 100:.3g}%) "
+                     f"and the one-sided Welch t-test on log times, {_CORRECTION_NAMES[self.correction]}-adjusted "
+                     f"over rows, gives p < {self.alpha:g}; needs >= {self.min_runs} rendered runs per side")
         lines.append(f"- error: regression when a metric is worse by > {self.error_threshold * 100:.3g}% relative "
-                     f"(and above its absolute floor)")
+                     f"(and above its absolute floor); MSE minus the references' noise floor; only against "
+                     f"identical references (key and spp)")
         lines.append("")
         if self.error:
             lines += [self.verdict(), ""]
@@ -132,12 +165,15 @@ class GateResult:
                     lines.append(f"... and {len(items) - len(shown)} more")
             lines.append("")
         if self.undecidable_timing:
-            lines.append(f"### Slower, but too few frames to test ({len(self.undecidable_timing)})")
-            lines += _table(["row", "ratio", "frames (baseline/candidate)", "smallest p"],
-                            [[r, f"x{ratio:.3f}", f"{nb}/{nc}", f"{mp:.3g}"]
-                             for r, ratio, nb, nc, mp in self.undecidable_timing])
-            lines.append(f"The Mann-Whitney test cannot reach p < {self.alpha:g} with these frame counts: run with "
-                         f"more timed frames (--frames >= 4 for alpha = 0.05).")
+            lines.append(f"### Timing not tested ({len(self.undecidable_timing)})")
+            lines += _table(["row", "ratio", "rendered runs (baseline/candidate)", "reason"],
+                            [[r, f"x{ratio:.3f}" if math.isfinite(ratio) else "–", f"{nb}/{nc}", why]
+                             for r, ratio, nb, nc, why in self.undecidable_timing[:MAX_TABLE_ROWS]])
+            if len(self.undecidable_timing) > MAX_TABLE_ROWS:
+                lines.append(f"... and {len(self.undecidable_timing) - MAX_TABLE_ROWS} more")
+            lines.append(f"Timing is gated on repetitions: give each side >= {self.min_runs} run folders "
+                         f"(`gibench gate A1,A2,A3 B1,B2,B3`, runs interleaved in time, rendered with --force or "
+                         f"without a shared row cache).")
             lines.append("")
         if self.not_comparable:
             lines.append(f"### Not comparable ({len(self.not_comparable)})")
@@ -189,6 +225,7 @@ def _describe(info: dict, n_rows: int) -> str:
 
 
 MAX_TABLE_ROWS = 60
+_CORRECTION_NAMES = {"holm": "Holm", "bh": "Benjamini-Hochberg"}
 
 
 def _by_row(items: list) -> list[str]:
@@ -242,9 +279,11 @@ def _load_run(path: Path, role: str):
     mpath = path / "manifest.json"
     if mpath.is_file():
         try:
-            manifest = json.loads(mpath.read_text())
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{role} manifest {mpath} is not valid JSON ({exc.msg})") from None
+            manifest = json.loads(mpath.read_bytes())
+        except ValueError:
+            raise ValueError(f"{role} manifest {mpath} is not valid JSON") from None
+        if not isinstance(manifest, dict):
+            raise ValueError(f"{role} manifest {mpath} is not a JSON object")
     missing = [c for c in ("scene", "view", "method", "params", "seed", "status") if c not in df.columns]
     if missing and len(df):
         raise ValueError(f"{role} results in {path} lack column(s) {', '.join(missing)}")
@@ -271,8 +310,9 @@ def _seed(value) -> int | str:
 
 
 def _key(rec: dict) -> tuple:
+    """(scene, view, method, params, seed, width, height): a run folder may hold several resolutions."""
     return (str(rec["scene"]), str(rec["view"]), str(rec["method"]), _canonical_params(rec["params"]),
-            _seed(rec["seed"]))
+            _seed(rec["seed"]), _seed(rec.get("width")), _seed(rec.get("height")))
 
 
 def _label(rec: dict) -> str:
@@ -330,26 +370,49 @@ def _float(rec: dict, column: str) -> float:
 
 
 # ---------------------------------------------------------------------------- the checks
-def smallest_p(n_base: int, n_cand: int) -> float:
-    """Smallest one-sided exact Mann-Whitney p with these sample sizes: 1 / C(n + m, n)."""
-    return 1.0 / math.comb(n_base + n_cand, n_base)
+def adjust_p_values(p_values, method: str = "holm") -> np.ndarray:
+    """p-values adjusted over a family of tests: Holm's step-down (family-wise error) or
+    Benjamini-Hochberg (false-discovery rate, scipy.stats.false_discovery_control)."""
+    p = np.asarray(p_values, dtype=np.float64)
+    if p.size == 0:
+        return p
+    if method == "bh":
+        from scipy.stats import false_discovery_control
+        return np.asarray(false_discovery_control(p, method="bh"), dtype=np.float64)
+    if method != "holm":
+        raise ValueError(f"correction must be one of {', '.join(CORRECTIONS)}, got {method!r}")
+    order = np.argsort(p, kind="stable")
+    m = p.size
+    stepped = np.maximum.accumulate((m - np.arange(m)) * p[order])
+    out = np.empty(m)
+    out[order] = np.minimum(stepped, 1.0)
+    return out
 
 
 def timing_check(base: list[float], cand: list[float], threshold: float, alpha: float) -> dict:
-    """Ratio of medians and one-sided Mann-Whitney p-values; 'regression' / 'improvement' / None."""
-    from scipy.stats import mannwhitneyu
-    mb, mc = float(np.median(base)), float(np.median(cand))
-    ratio = mc / mb if mb > 0 else (math.inf if mc > 0 else 1.0)
-    p_slower = float(mannwhitneyu(cand, base, alternative="greater").pvalue)
-    p_faster = float(mannwhitneyu(cand, base, alternative="less").pvalue)
-    reachable = smallest_p(len(base), len(cand)) < alpha
+    """One row's per-run times (one number per run and side): ratio of geometric means and
+    one-sided Welch t-test p-values on their logarithms (unadjusted); verdict at `alpha`."""
+    from scipy.stats import ttest_ind
+    lb, lc = np.log(np.asarray(base, np.float64)), np.log(np.asarray(cand, np.float64))
+    ratio = float(np.exp(lc.mean() - lb.mean()))
+    if len(lb) < 2 or len(lc) < 2:
+        p_slower = p_faster = 1.0
+    else:
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore")  # identical runs: scipy warns about precision loss
+            p_slower = float(ttest_ind(lc, lb, equal_var=False, alternative="greater").pvalue)
+            p_faster = float(ttest_ind(lc, lb, equal_var=False, alternative="less").pvalue)
+        if not math.isfinite(p_slower) or not math.isfinite(p_faster):  # zero spread on both sides
+            same = np.isclose(lc.mean(), lb.mean(), rtol=0, atol=1e-12)
+            p_slower = 1.0 if same or ratio < 1 else 0.0
+            p_faster = 1.0 if same or ratio > 1 else 0.0
     verdict = None
     if ratio > 1 + threshold and p_slower < alpha:
         verdict = "regression"
     elif ratio < 1 / (1 + threshold) and p_faster < alpha:
         verdict = "improvement"
-    return {"median_base": mb, "median_cand": mc, "ratio": ratio, "p_slower": p_slower, "p_faster": p_faster,
-            "reachable": reachable, "verdict": verdict}
+    return {"base": [float(v) for v in base], "cand": [float(v) for v in cand], "ratio": ratio,
+            "p_slower": p_slower, "p_faster": p_faster, "verdict": verdict}
 
 
 def _stage_growth(b: dict, c: dict) -> str:
@@ -382,38 +445,162 @@ def error_check(metric: str, base: float, cand: float, threshold: float) -> str 
     return None
 
 
-def compare_runs(baseline: Path, candidate: Path, time_threshold: float = 0.10, error_threshold: float = 0.05,
-                 alpha: float = 0.05, compare_changed_versions: bool = False) -> GateResult:
+def _text(rec: dict, column: str) -> str | None:
+    """A cell as text; numbers in one form (64, 64.0 and "64" are "64"); None when empty."""
+    v = rec.get(column)
+    if v is None or (isinstance(v, float) and math.isnan(v)):
+        return None
+    if isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool):
+        f = float(v)
+        return str(int(f)) if f.is_integer() else repr(f)
+    return str(v)
+
+
+def _reference_difference(b: dict, c: dict, component: str) -> str | None:
+    """Why a component's errors were judged against different references, or None."""
+    for part in REFERENCE_PARTS.get(component, ()):
+        for col, what in ((f"reference_key.{part}", "key"), (f"reference_spp.{part}", "spp")):
+            vb, vc = _text(b, col), _text(c, col)
+            if vb is None and vc is None:
+                continue
+            if vb != vc:
+                short = lambda v: "none" if v is None else (v[:8] if what == "key" else v)
+                return f"reference {part} {what} {short(vb)} -> {short(vc)}"
+    return None
+
+
+def _noise_floor(rec: dict, component: str) -> float:
+    total = 0.0
+    for part in REFERENCE_PARTS.get(component, ()):
+        v = _float(rec, f"reference_noise_floor.{part}")
+        if not math.isfinite(v):
+            return 0.0
+        total += v
+    return total
+
+
+def _timing_mismatch(b: dict, c: dict) -> str | None:
+    for col in ("frames", "warmup", "stage_clock"):
+        vb, vc = _text(b, col), _text(c, col)
+        if vb is not None and vc is not None and vb != vc:
+            return f"{col} {vb} -> {vc}"
+    return None
+
+
+def _run_median(rec: dict) -> float:
+    samples = _samples(rec)
+    if samples:
+        return float(np.median(samples))
+    return _float(rec, "frame_ms")
+
+
+def _per_run_times(side: list, key: tuple, primary: dict, relative_to: str | None) -> list[float]:
+    """One number per run of a side in which the row was rendered (not cached) and matches the
+    primary run's row (method version, scene content, resolution, frames, warm-up, clock)."""
+    out = []
+    for idx, _ in side:
+        rec = idx.get(key)
+        if rec is None or _status(rec).split(":", 1)[0].strip() not in RENDERED_STATUSES:
+            continue
+        if any(_text(rec, col) != _text(primary, col) for col in
+               ("method_version", "scene_hash", "width", "height", "frames", "warmup", "stage_clock")):
+            continue
+        t = _run_median(rec)
+        if relative_to is not None:
+            ref = idx.get((key[0], key[1], relative_to, None) + tuple(key[4:]))
+            t = t / _run_median(ref) if ref is not None else math.nan
+        if math.isfinite(t) and t > 0:
+            out.append(t)
+    return out
+
+
+def _method_index(idx: dict) -> dict:
+    """(scene, view, method, None, seed, width, height) -> first row of that method rendered in this
+    run (the relative_to lookup: a cached yardstick would repeat another run's timing)."""
+    out = {}
+    for key, rec in idx.items():
+        short = (key[0], key[1], key[2], None) + tuple(key[4:])
+        if short not in out and _status(rec).split(":", 1)[0].strip() in RENDERED_STATUSES:
+            out[short] = rec
+    return out
+
+
+def _as_paths(value) -> list[Path]:
+    if isinstance(value, (str, Path)):
+        parts = [p for p in str(value).split(",") if p.strip()] if isinstance(value, str) else [value]
+        return [Path(p.strip()) if isinstance(p, str) else Path(p) for p in parts]
+    return [Path(v) for v in value]
+
+
+def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_threshold: float = 0.05,
+                 alpha: float = 0.05, compare_changed_versions: bool = False, relative_to: str | None = None,
+                 correction: str = "holm", min_runs: int = MIN_RUNS) -> GateResult:
+    """Compare two sides, each a run folder or a list of run folders (repetitions)."""
     for name, value in (("time_threshold", time_threshold), ("error_threshold", error_threshold)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
     if not (0 < alpha < 1):
         raise ValueError(f"alpha must be in (0, 1), got {alpha!r}")
-    bdf, bman = _load_run(baseline, "baseline")
-    cdf, cman = _load_run(candidate, "candidate")
-    res = GateResult(Path(baseline), Path(candidate), float(time_threshold), float(error_threshold), float(alpha),
-                     baseline_rows=len(bdf), candidate_rows=len(cdf), baseline_info=bman, candidate_info=cman)
-    bidx, cidx = _index(bdf, "baseline", res.notes), _index(cdf, "candidate", res.notes)
+    if correction not in CORRECTIONS:
+        raise ValueError(f"correction must be one of {', '.join(CORRECTIONS)}, got {correction!r}")
+    if not (isinstance(min_runs, int) and min_runs >= 2):
+        raise ValueError(f"min_runs must be an integer >= 2 (a spread needs two runs), got {min_runs!r}")
+    bpaths, cpaths = _as_paths(baseline), _as_paths(candidate)
+    if not bpaths or not cpaths:
+        raise ValueError("each side of the gate needs at least one run folder")
+    bruns = [_load_run(p, "baseline") for p in bpaths]
+    cruns = [_load_run(p, "candidate") for p in cpaths]
+    (bdf, bman), (cdf, cman) = bruns[0], cruns[0]
+    res = GateResult(bpaths[0] if len(bpaths) == 1 else Path(",".join(map(str, bpaths))),
+                     cpaths[0] if len(cpaths) == 1 else Path(",".join(map(str, cpaths))),
+                     float(time_threshold), float(error_threshold), float(alpha), correction=correction,
+                     min_runs=min_runs, relative_to=relative_to, baseline_runs=len(bpaths),
+                     candidate_runs=len(cpaths), baseline_rows=len(bdf), candidate_rows=len(cdf),
+                     baseline_info=bman, candidate_info=cman)
+    bside = [(_index(df, f"baseline {p}", res.notes), m) for p, (df, m) in zip(bpaths, bruns)]
+    cside = [(_index(df, f"candidate {p}", res.notes), m) for p, (df, m) in zip(cpaths, cruns)]
+    if relative_to is not None:
+        bside = [({**idx, **_method_index(idx)}, m) for idx, m in bside]
+        cside = [({**idx, **_method_index(idx)}, m) for idx, m in cside]
+        if not any(k[2] == relative_to and k[3] is not None for idx, _ in bside for k in idx):
+            raise ValueError(f"--relative-to {relative_to}: the baseline has no row of method '{relative_to}'")
+    bidx, cidx = (_strip(bside[0][0]), _strip(cside[0][0]))
 
-    bm, cm = bman.get("machine") or {}, cman.get("machine") or {}
+    machines = [m.get("machine") or {} for _, m in bside + cside]
     for field_name in ("gl_renderer", "cpu"):
-        if bm.get(field_name) and cm.get(field_name) and bm[field_name] != cm[field_name]:
-            res.notes.append(f"machines differ ({field_name}: {bm[field_name]!r} vs {cm[field_name]!r}): "
+        values = {str(m[field_name]) for m in machines if m.get(field_name)}
+        if len(values) > 1:
+            res.notes.append(f"machines differ ({field_name}: {', '.join(repr(v) for v in sorted(values))}): "
                              f"timing changes may come from the machine")
 
     common = [k for k in bidx if k in cidx]
-    res.missing = [_label(bidx[k]) for k in bidx if k not in cidx and _is_ok(bidx[k])]
-    res.new = [_label(cidx[k]) for k in cidx if k not in bidx]
+    reasons: dict = {}  # why rows were not comparable, for the notes
+    # a row measured at another resolution is the same row, not comparable (not missing + new)
+    other_res: dict = {}
+    for k in cidx:
+        if k not in bidx:
+            other_res.setdefault(k[:5], k)
+    paired_b, paired_c = set(), set()
+    for k in bidx:
+        ck = other_res.get(k[:5])
+        if k in cidx or ck is None or ck in paired_c or not _is_ok(bidx[k]):
+            continue
+        paired_b.add(k)
+        paired_c.add(ck)
+        res.not_comparable.append((_label(bidx[k]), f"resolution changed ({k[5]}x{k[6]} -> {ck[5]}x{ck[6]})"))
+        reasons["resolution changed"] = reasons.get("resolution changed", 0) + 1
+    res.missing = [_label(bidx[k]) for k in bidx if k not in cidx and k not in paired_b and _is_ok(bidx[k])]
+    res.new = [_label(cidx[k]) for k in cidx if k not in bidx and k not in paired_c]
     if not bidx:
-        res.error = f"the baseline run {baseline} has no rows"
+        res.error = f"the baseline run {bpaths[0]} has no rows"
         return res
-    if not common:
+    if not common and not reasons:
         res.error = "no row of the candidate matches a baseline row on (scene, view, method, params, seed)"
         return res
 
     err_cols = sorted(set(error_columns(bdf.columns)) & set(error_columns(cdf.columns)))
-    lost_errors, ref_changed = 0, 0
-    untestable: dict = {}  # (n_base, n_cand) -> rows whose timing can never reach alpha
+    lost_errors, ref_differs = 0, 0
+    timing: list = []   # (label, result of timing_check, note, base row, cand row)
     for key in common:
         b, c = bidx[key], cidx[key]
         label = _label(b)
@@ -430,65 +617,109 @@ def compare_runs(baseline: Path, candidate: Path, time_threshold: float = 0.10, 
         if isinstance(bv, str) and isinstance(cv, str) and bv != cv:
             if not compare_changed_versions:
                 res.not_comparable.append((label, f"method version changed ({bv[:8]} -> {cv[:8]})"))
+                reasons["method version changed"] = reasons.get("method version changed", 0) + 1
                 continue
             note = "method changed"
+        bh, ch = _text(b, "scene_hash"), _text(c, "scene_hash")
+        if bh is not None and ch is not None and bh != ch:
+            res.not_comparable.append((label, f"scene content changed ({bh[:8]} -> {ch[:8]})"))
+            reasons["scene content changed"] = reasons.get("scene content changed", 0) + 1
+            continue
         bres = (_float(b, "width"), _float(b, "height"))
         cres = (_float(c, "width"), _float(c, "height"))
         if all(map(math.isfinite, bres + cres)) and bres != cres:
             res.not_comparable.append((label, f"resolution changed ({int(bres[0])}x{int(bres[1])} -> "
                                               f"{int(cres[0])}x{int(cres[1])})"))
+            reasons["resolution changed"] = reasons.get("resolution changed", 0) + 1
             continue
         res.compared += 1
 
-        # timing
-        sb, sc = _samples(b), _samples(c)
-        if sb and sc:
-            t = timing_check(sb, sc, time_threshold, alpha)
-            if not t["reachable"]:
-                untestable[(len(sb), len(sc))] = untestable.get((len(sb), len(sc)), 0) + 1
-            growth = _stage_growth(b, c)
-            finding = Finding(label, "frame_ms (median)", t["median_base"], t["median_cand"], f"x{t['ratio']:.3f}",
-                              t["p_slower"] if t["ratio"] >= 1 else t["p_faster"],
-                              "; ".join(x for x in (note, growth) if x))
-            if t["verdict"] == "regression":
-                res.regressions.append(finding)
-            elif t["verdict"] == "improvement":
-                res.improvements.append(finding)
-            elif t["ratio"] > 1 + time_threshold and not t["reachable"]:
-                res.undecidable_timing.append((label, t["ratio"], len(sb), len(sc), smallest_p(len(sb), len(sc))))
-        elif sb and not sc:
-            res.notes.append(f"{label}: the candidate row has no frame-time samples")
+        # timing: one number per rendered run and side
+        mismatch = _timing_mismatch(b, c)
+        if relative_to is not None and key[2] == relative_to:
+            pass  # the yardstick itself: its relative time is 1 by definition
+        elif mismatch:
+            res.not_comparable.append((label, f"timing not comparable ({mismatch})"))
+        else:
+            tb = _per_run_times(bside, key, b, relative_to)
+            tc = _per_run_times(cside, key, c, relative_to)
+            if len(tb) >= min_runs and len(tc) >= min_runs:
+                timing.append((label, timing_check(tb, tc, time_threshold, alpha), note, b, c))
+            elif tb and tc:
+                ratio = float(np.exp(np.mean(np.log(tc)) - np.mean(np.log(tb))))
+                res.undecidable_timing.append((label, ratio, len(tb), len(tc), f"fewer than {min_runs} rendered runs"))
+            else:
+                why = (f"no rendered run with a '{relative_to}' row" if relative_to is not None
+                       else "no rendered run (cached rows repeat old timings)")
+                res.undecidable_timing.append((label, math.nan, len(tb), len(tc), why))
 
-        # error
+        # error: only against the same references; MSE net of the references' noise floor
+        skipped_components: dict = {}
         for col in err_cols:
+            metric, component = col.split(".", 1)
             vb, vc = _float(b, col), _float(c, col)
             if not math.isfinite(vb):
                 continue
             if not math.isfinite(vc):
                 lost_errors += 1
                 continue
-            verdict = error_check(col.split(".", 1)[0], vb, vc, error_threshold)
+            if component not in skipped_components:
+                skipped_components[component] = _reference_difference(b, c, component)
+            if skipped_components[component] is not None:
+                continue
+            col_note = note
+            if metric == "mse":
+                fb, fc = _noise_floor(b, component), _noise_floor(c, component)
+                if fb or fc:
+                    vb, vc = max(vb - fb, 0.0), max(vc - fc, 0.0)
+                    col_note = "; ".join(x for x in (note, "MSE minus the reference noise floor") if x)
+            verdict = error_check(metric, vb, vc, error_threshold)
             if verdict:
-                f = Finding(label, col, vb, vc, _pct(vb, vc), None, note)
+                f = Finding(label, col, vb, vc, _pct(vb, vc), None, col_note)
                 (res.regressions if verdict == "regression" else res.improvements).append(f)
-        for col in b:
-            if str(col).startswith("reference_key.") and col in c:
-                if isinstance(b[col], str) and isinstance(c[col], str) and b[col] != c[col]:
-                    ref_changed += 1
-                    break
+        differing = {comp: why for comp, why in skipped_components.items() if why}
+        if differing:
+            ref_differs += 1
+            res.not_comparable.append((label, "errors of " + ", ".join(f"{comp} ({why})" for comp, why in
+                                                                     sorted(differing.items())) + " not comparable"))
 
-    for (nb, nc), count in sorted(untestable.items()):
-        res.notes.append(f"timing of {count} row(s) cannot be judged: with {nb} vs {nc} frames the smallest "
-                         f"Mann-Whitney p is {smallest_p(nb, nc):.3g}, not below alpha = {alpha:g} "
-                         f"(the gate needs >= 4 timed frames per row for alpha = 0.05)")
+    # timing verdicts, adjusted over every tested row
+    if timing:
+        res.timing_tested = len(timing)
+        slower = adjust_p_values([t["p_slower"] for _, t, _, _, _ in timing], correction)
+        faster = adjust_p_values([t["p_faster"] for _, t, _, _, _ in timing], correction)
+        for (label, t, note, b, c), ps, pf in zip(timing, slower, faster):
+            ratio = t["ratio"]
+            mb, mc = float(np.exp(np.mean(np.log(t["base"])))), float(np.exp(np.mean(np.log(t["cand"]))))
+            extra = f"{len(t['base'])} vs {len(t['cand'])} runs"
+            finding = Finding(label, "frame_ms (relative)" if relative_to else "frame_ms (median)", mb, mc,
+                              f"x{ratio:.3f}", float(ps if ratio >= 1 else pf),
+                              "; ".join(x for x in (note, extra, _stage_growth(b, c)) if x))
+            if ratio > 1 + time_threshold and ps < alpha:
+                res.regressions.append(finding)
+            elif ratio < 1 / (1 + time_threshold) and pf < alpha:
+                res.improvements.append(finding)
+
+    if res.compared == 0:
+        why = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items())) or "every baseline row was skipped"
+        res.error = f"nothing was compared: {len(common) + len(paired_b)} matched row(s), none comparable ({why})"
     baseline_err = set(error_columns(bdf.columns))
     if baseline_err and not err_cols:
         res.notes.append("the candidate has no error columns (run without references?): errors were not compared")
     elif lost_errors:
         res.notes.append(f"{lost_errors} error value(s) of the baseline are empty in the candidate: not compared")
-    if ref_changed:
-        res.notes.append(f"{ref_changed} row(s) were judged against different references (reference_key differs)")
-    if res.not_comparable and not compare_changed_versions:
+    if ref_differs:
+        res.notes.append(f"errors of {ref_differs} row(s) were not compared: the references differ (key or spp; "
+                         f"refinement depends on which methods ran). Re-run both sides with the same methods.")
+    if res.undecidable_timing and min(len(bpaths), len(cpaths)) < min_runs:
+        res.notes.append(f"timing is gated on >= {min_runs} runs per side; this gate had {len(bpaths)} vs "
+                         f"{len(cpaths)}: timing was not tested")
+    if reasons.get("method version changed") and not compare_changed_versions:
         res.notes.append("rows whose method version changed are not compared (edited code is not compared as if "
                          "equal); compare them anyway with compare_changed_versions=True")
     return res
+
+
+def _strip(idx: dict) -> dict:
+    """An index without the relative_to lookup entries (params None)."""
+    return {k: v for k, v in idx.items() if k[3] is not None}

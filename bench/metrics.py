@@ -14,6 +14,11 @@ a view are compared on one scale (both depend on the reference alone, never on t
     start = log2(x_max / Y_max), stop = log2(x_max / Y_median), computed over covered pixels
     whose reference luminance is > 0 (an indirect-only reference can have a zero median over
     all covered pixels); an all-zero reference uses Y_max = Y_median = 1.
+`relmse` and `smape` are scale-invariant: their epsilon is relative to the reference's own
+level over the covered pixels (mean r^2 for relmse, mean |r| for smape), so scaling image and
+reference by the same brightness factor leaves them unchanged and scenes whose indirect radiance
+is 0.002 or 0.08 are judged alike. (An absolute epsilon of 0.01 radiance units made relMSE
+MSE / 0.01 for indirect light.) An all-zero reference falls back to the absolute epsilons.
 Spatial metrics (dssim, FLIP) see every pixel outside the mask as black in both images (what
 background is), so nothing outside the mask leaks into their windows.
 """
@@ -24,8 +29,8 @@ import warnings
 
 import numpy as np
 
-EPS_RELMSE = 0.01          # relative MSE: (x - r)^2 / (r^2 + EPS_RELMSE) (Rousselle/Zwicker convention)
-EPS_SMAPE = 0.01           # SMAPE: |x - r| / (|x| + |r| + EPS_SMAPE) (Vogels et al. 2018 convention)
+EPS_RELMSE = 0.01          # relative MSE: (x - r)^2 / (r^2 + EPS_RELMSE * mean(r^2)) (Rousselle/Zwicker's 0.01, in units of the reference's level)
+EPS_SMAPE = 0.01           # SMAPE: |x - r| / (|x| + |r| + EPS_SMAPE * mean|r|) (Vogels et al. 2018's 0.01, same)
 TONEMAP_PERCENTILE = 99.0  # reference percentile (of max RGB channel) mapped to display white
 SSIM_WINDOW = 7            # skimage's default uniform window, K1 = 0.01, K2 = 0.03
 FLIP_TONEMAPPER = "aces"   # HDR-FLIP's default tone mapper
@@ -34,8 +39,10 @@ LUMA = np.array([0.2126, 0.7152, 0.0722])  # Rec. 709 / sRGB luminance weights (
 
 METRICS = {
     "mse": "mean over covered pixels and RGB channels of (x - r)^2, linear radiance",
-    "relmse": f"mean over covered pixels and RGB channels of (x - r)^2 / (r^2 + {EPS_RELMSE})",
-    "smape": f"mean over covered pixels and RGB channels of |x - r| / (|x| + |r| + {EPS_SMAPE}), in [0, 1)",
+    "relmse": (f"mean over covered pixels and RGB channels of (x - r)^2 / (r^2 + {EPS_RELMSE} * mean(r^2)), "
+               "mean(r^2) over the reference's covered pixels and channels (scale-invariant)"),
+    "smape": (f"mean over covered pixels and RGB channels of |x - r| / (|x| + |r| + {EPS_SMAPE} * mean|r|), "
+              "mean|r| over the reference's covered pixels and channels, in [0, 1) (scale-invariant)"),
     "dssim": (f"1 - mean over covered pixels of the SSIM map (scikit-image, {SSIM_WINDOW}x{SSIM_WINDOW} uniform "
               "window, K1=0.01, K2=0.03, data_range=1) of the sRGB-encoded luminance of the tone-mapped images "
               f"(clip(x / P{TONEMAP_PERCENTILE:g}(reference max channel), 0, 1))"),
@@ -98,20 +105,40 @@ def mse(image, reference, mask=None) -> float:
     return float(np.mean((img[m] - ref[m]) ** 2))
 
 
-def relmse(image, reference, mask=None, eps: float = EPS_RELMSE) -> float:
+def relmse_epsilon(reference, mask=None) -> float:
+    """EPS_RELMSE * mean(r^2) over the covered pixels (EPS_RELMSE itself for an all-zero reference)."""
+    ref = _as_rgb(reference, "reference")
+    m = _as_mask(mask, ref.shape)
+    level = float(np.mean(ref[m] ** 2)) if m.any() else 0.0
+    return EPS_RELMSE * level if level > 0 else EPS_RELMSE
+
+
+def smape_epsilon(reference, mask=None) -> float:
+    """EPS_SMAPE * mean|r| over the covered pixels (EPS_SMAPE itself for an all-zero reference)."""
+    ref = _as_rgb(reference, "reference")
+    m = _as_mask(mask, ref.shape)
+    level = float(np.mean(np.abs(ref[m]))) if m.any() else 0.0
+    return EPS_SMAPE * level if level > 0 else EPS_SMAPE
+
+
+def relmse(image, reference, mask=None, eps: float | None = None) -> float:
+    """Relative MSE; `eps` (absolute, radiance^2) defaults to `relmse_epsilon(reference, mask)`."""
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan
     x, r = img[m], ref[m]
-    return float(np.mean((x - r) ** 2 / (r * r + eps)))
+    e = relmse_epsilon(ref, m) if eps is None else float(eps)
+    return float(np.mean((x - r) ** 2 / (r * r + e)))
 
 
-def smape(image, reference, mask=None, eps: float = EPS_SMAPE) -> float:
+def smape(image, reference, mask=None, eps: float | None = None) -> float:
+    """Symmetric MAPE; `eps` (absolute, radiance) defaults to `smape_epsilon(reference, mask)`."""
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan
     x, r = img[m], ref[m]
-    return float(np.mean(np.abs(x - r) / (np.abs(x) + np.abs(r) + eps)))
+    e = smape_epsilon(ref, m) if eps is None else float(eps)
+    return float(np.mean(np.abs(x - r) / (np.abs(x) + np.abs(r) + e)))
 
 
 # ---------------------------------------------------------------------------- display transforms

@@ -2,11 +2,19 @@
 Parquet, written atomically after every row so an interrupted run loses nothing.
 
 Schema versions: SCHEMA_VERSION is stored in the manifest; `migrate` upgrades older tables.
+
+Integrity: `results.checksums.json` holds the sha256 and row count of both files, written after
+them. `load_results` uses a file only when it is consistent: with checksums, the file whose
+checksum holds (parquet first; the CSV when only it holds; an error when neither does); without
+them (tables written by hand or by an older gibench), a CSV that does not end with a newline is
+cut mid-line (error), and a parquet and a CSV that disagree on their rows are an error.
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +22,8 @@ import pandas as pd
 
 SCHEMA_VERSION = 1
 KEY_COLUMNS = ("scene", "view", "method", "params", "seed")
-BASE_COLUMNS = ("scene", "view", "method", "params", "seed", "width", "height", "frames", "warmup",
+CHECKSUMS = "results.checksums.json"
+BASE_COLUMNS = ("scene", "scene_hash", "view", "method", "params", "seed", "width", "height", "frames", "warmup",
                 "frame_ms", "frame_ms_iqr", "gpu_ms", "status", "method_version", "row_key",
                 "skipped_stages", "samples.frame_ms", "samples.stage_ms")
 
@@ -42,22 +51,80 @@ def save_results(run_dir: Path, rows: list[dict]) -> pd.DataFrame:
     df = order_columns(pd.DataFrame(rows)) if rows else pd.DataFrame(columns=list(BASE_COLUMNS))
     csv_tmp = run_dir / f".results.csv.tmp{os.getpid()}"
     df.to_csv(csv_tmp, index=False)
-    os.replace(csv_tmp, run_dir / "results.csv")
     pq_tmp = run_dir / f".results.parquet.tmp{os.getpid()}"
     df.to_parquet(pq_tmp, index=False)
+    sums = {"rows": int(len(df)), "results.csv": _sha256(csv_tmp), "results.parquet": _sha256(pq_tmp)}
+    os.replace(csv_tmp, run_dir / "results.csv")
     os.replace(pq_tmp, run_dir / "results.parquet")
+    atomic_write_text(run_dir / CHECKSUMS, json.dumps(sums, indent=1))
     return df
+
+
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+class ResultsError(ValueError):
+    """A results table that cannot be trusted (one line naming the file)."""
+
+
+def _read_csv(csv: Path) -> pd.DataFrame:
+    data = csv.read_bytes()
+    if data and not data.endswith(b"\n"):
+        raise ResultsError(f"{csv} is cut mid-line (no newline at its end): the table is incomplete")
+    try:
+        return pd.read_csv(csv)
+    except (ValueError, pd.errors.ParserError) as exc:
+        raise ResultsError(f"{csv} is not a readable CSV table ({' '.join(str(exc).split())})") from None
+
+
+def _read_parquet(pq: Path) -> pd.DataFrame:
+    try:
+        return pd.read_parquet(pq)
+    except Exception as exc:  # pyarrow raises several types for a damaged file
+        raise ResultsError(f"{pq} is not a readable parquet table ({type(exc).__name__})") from None
+
+
+def _same_rows(a: pd.DataFrame, b: pd.DataFrame) -> bool:
+    if len(a) != len(b) or set(a.columns) != set(b.columns):
+        return False
+    for col in [c for c in ("scene", "view", "method", "status", "row_key") if c in a.columns]:
+        if list(a[col].astype(str)) != list(b[col].astype(str)):
+            return False
+    return True
+
+
+def _load_table(run_dir: Path) -> pd.DataFrame:
+    pq, csv = run_dir / "results.parquet", run_dir / "results.csv"
+    if not pq.is_file() and not csv.is_file():
+        raise FileNotFoundError(f"no results.csv or results.parquet in {run_dir}")
+    sums = None
+    if (run_dir / CHECKSUMS).is_file():
+        try:
+            sums = json.loads((run_dir / CHECKSUMS).read_bytes())
+        except (OSError, ValueError):
+            sums = None
+    if isinstance(sums, dict):
+        good = [p for p in (pq, csv) if p.is_file() and sums.get(p.name) == _sha256(p)]
+        if good:
+            if len(good) == 1 and (pq.is_file() and csv.is_file()):
+                print(f"gibench: warning: {run_dir}: {({pq, csv} - set(good)).pop().name} does not match its "
+                      f"checksum; using {good[0].name}", file=sys.stderr)
+            return _read_parquet(good[0]) if good[0] == pq else _read_csv(good[0])
+        raise ResultsError(f"{run_dir}: neither results.parquet nor results.csv matches {CHECKSUMS} "
+                           f"(edited or damaged); delete {CHECKSUMS} to accept the files as they are")
+    if pq.is_file() and csv.is_file():
+        a, b = _read_parquet(pq), _read_csv(csv)
+        if not _same_rows(a, b):
+            raise ResultsError(f"{run_dir}: results.parquet ({len(a)} rows) and results.csv ({len(b)} rows) "
+                               f"disagree; delete the wrong one")
+        return a
+    return _read_parquet(pq) if pq.is_file() else _read_csv(csv)
 
 
 def load_results(run_dir: Path) -> pd.DataFrame:
     run_dir = Path(run_dir)
-    pq, csv = run_dir / "results.parquet", run_dir / "results.csv"
-    if pq.is_file():
-        df = pd.read_parquet(pq)
-    elif csv.is_file():
-        df = pd.read_csv(csv)
-    else:
-        raise FileNotFoundError(f"no results.csv or results.parquet in {run_dir}")
+    df = _load_table(run_dir)
     manifest = run_dir / "manifest.json"
     version = json.loads(manifest.read_text()).get("schema_version", 1) if manifest.is_file() else 1
     return migrate(df, version)

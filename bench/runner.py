@@ -8,6 +8,20 @@ version, parameters, resolution, frames, seed and machine are unchanged is not r
 (`force=True` re-runs); an interrupted run resumes from its results table.
 A method that fails (to load, to prepare, to render) becomes a `failed: <reason>` row and the
 run goes on with the others.
+
+Trust rules:
+* Row cache entries carry sha256 checksums of their row and images (`row.json`, format 2). A
+  hit takes the measured values from the entry and every label (scene name, view, paths) from
+  the current run; an entry that fails its checks is a miss, evicted with a one-line warning.
+* Scene names are unique within a run (two scenes named alike are bad input, not a silent
+  overwrite); a hit keyed on scene *content* therefore never mislabels a row.
+* An existing `--out` is merged, not replaced: rows of the folder that this run does not
+  produce (other methods, resolutions, parameter sets) are kept, and their images are moved
+  aside when this run's rows need the same image folder. `run_state.json` records which rows
+  the current invocation finished, so an interrupted `force=True` run resumes too (without
+  `force`, every finished row of the folder is reused).
+* Every `--param` is checked for every method before the first row; a `--param` of a method
+  that is not in the run is bad input.
 """
 from __future__ import annotations
 
@@ -96,6 +110,39 @@ def package_versions() -> dict:
     return out
 
 
+ROW_CACHE_FORMAT = 2  # row.json = {"format", "row", "row_sha256", "files": {name: sha256}}
+RUN_STATE = "run_state.json"
+
+
+def file_sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def row_sha256(row: dict) -> str:
+    return hashlib.sha256(json.dumps(row, sort_keys=True, default=_json_default).encode()).hexdigest()
+
+
+def row_identity(row: dict) -> tuple:
+    """What makes two result rows the same row of a run folder (a re-run replaces it)."""
+    def num(v):
+        try:
+            return int(float(v))
+        except (TypeError, ValueError):
+            return str(v)
+    params = row.get("params")
+    if isinstance(params, str):
+        try:
+            params = store.params_json(json.loads(params))
+        except json.JSONDecodeError:
+            pass
+    return (str(row.get("scene")), str(row.get("view")), str(row.get("method")), str(params), num(row.get("seed")),
+            num(row.get("width")), num(row.get("height")))
+
+
 def row_cache_key(scene, camera: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str,
                   stage_clock: str = "") -> str:
     payload = {"scene": scene.content_hash(), "camera": camera, "camera_def": scene.cameras[camera].to_dict(),
@@ -142,23 +189,48 @@ class Runner:
         cfg.validate()
         self.cfg = cfg
         self.log = log
+        self.resolved = self._validate_params()
         self.run_dir = Path(cfg.out) if cfg.out else default_run_dir()
-        self.run_dir.mkdir(parents=True, exist_ok=True)
+        _prepare_run_dir(self.run_dir)
         self.rows: list[dict] = []
+        self.kept: list[dict] = []   # rows of the folder this run does not produce (merge)
         self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
+        self._black_warned: set = set()
+
+    def _validate_params(self) -> dict:
+        """Every --param of every method, checked before the first row: {(method, i): resolved}."""
+        from bench.method import resolve_params
+        cfg = self.cfg
+        stray = sorted(set(cfg.params) - set(cfg.methods))
+        if stray:
+            raise ValueError(f"--param given for method(s) {', '.join(stray)} not in this run "
+                             f"(methods: {', '.join(cfg.methods)})")
+        resolved = {}
+        for method in cfg.methods:
+            try:
+                cls = load_method(method)
+            except Exception:  # a method that fails to load becomes a failed row (recorded, the run goes on)
+                continue
+            for i, pset in enumerate(expand_param_sets(cfg, method)):
+                resolved[(method, i)] = resolve_params(cls, pset)
+        return resolved
 
     # ------------------------------------------------------------------ setup
     def _load_scenes(self):
         """Corpus names, .toml scene files, or Scene objects (tests, scripts)."""
         from bench.scene import Scene
-        scenes = {}
+        scenes, given = {}, {}
         for item in self.cfg.scenes:
             if isinstance(item, Scene):
                 scene = item
             else:
                 from bench.corpus import load_scene
                 scene = load_scene(item)
-            scenes[scene.name] = scene
+            what = str(item) if not isinstance(item, Scene) else (scene.source or "a Scene object")
+            if scene.name in scenes:
+                raise ValueError(f"two scenes are named '{scene.name}' ({given[scene.name]} and {what}): "
+                                 f"scene names must be unique within a run")
+            scenes[scene.name], given[scene.name] = scene, what
         return scenes
 
     def _write_manifest(self, ctx, scenes, facts) -> None:
@@ -175,19 +247,76 @@ class Runner:
         }
         store.atomic_write_text(self.run_dir / "manifest.json", json.dumps(manifest, indent=2, default=str))
 
-    def _existing_rows(self) -> dict:
-        """Rows of an interrupted run in the same folder (resume), by row_key."""
+    def _existing_table(self) -> list[dict]:
+        """Rows already in the run folder (a corrupt table is an error, never silently dropped)."""
         try:
             df = store.load_results(self.run_dir)
         except FileNotFoundError:
-            return {}
-        if "row_key" not in df.columns:
-            return {}
+            return []
+        return df.to_dict("records")
+
+    @staticmethod
+    def _resumable(existing: list[dict], allowed: set | None) -> dict:
+        """Finished rows of the folder by (row_key, image_dir); `allowed` limits them to those keys."""
         out = {}
-        for rec in df.to_dict("records"):
+        for rec in existing:
+            key = (rec.get("row_key"), rec.get("image_dir"))
+            if not isinstance(key[0], str) or not isinstance(key[1], str):
+                continue
+            if allowed is not None and f"{key[0]}|{key[1]}" not in allowed:
+                continue
             if str(rec.get("status", "")).startswith(("ok", "cached", "skipped")):
-                out[rec["row_key"]] = rec
+                out[key] = rec
         return out
+
+    def _invocation_hash(self, scenes) -> str:
+        cfg = self.cfg
+        payload = {k: v for k, v in cfg.__dict__.items() if k not in ("scenes", "progress", "out")}
+        payload["scenes"] = [(name, s.content_hash()) for name, s in scenes.items()]
+        return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+    def _read_state(self) -> dict:
+        try:
+            state = json.loads((self.run_dir / RUN_STATE).read_bytes())
+        except (OSError, ValueError):
+            return {}
+        return state if isinstance(state, dict) else {}
+
+    def _write_state(self) -> None:
+        store.atomic_write_text(self.run_dir / RUN_STATE, json.dumps(self._state, indent=1))
+
+    def _merge_plan(self, existing: list[dict], jobs: list) -> None:
+        """Keep the folder's rows this run does not produce; move their images out of the way of this run's."""
+        produced = {ident for ident, _ in jobs}
+        new_dirs = {image_dir for _, image_dir in jobs}
+        for rec in existing:
+            if row_identity(rec) in produced:
+                continue
+            image_dir = rec.get("image_dir")
+            if isinstance(image_dir, str) and image_dir in new_dirs:
+                tag = str(rec.get("row_key") or hashlib.sha256(repr(row_identity(rec)).encode()).hexdigest())[:8]
+                moved = f"{image_dir}@{tag}"
+                src, dst = self.run_dir / image_dir, self.run_dir / moved
+                if src.is_dir() and not dst.exists():
+                    shutil.move(str(src), str(dst))
+                rec = dict(rec, image_dir=moved)
+            self.kept.append(rec)
+        if self.kept:
+            self.log(f"gibench: {self.run_dir}: keeping {len(self.kept)} row(s) of earlier runs "
+                     f"(other methods, resolutions or parameters)")
+
+    def _job_identity(self, scene, view, method, index, pset) -> tuple:
+        """(row identity, image dir) of a job, as the row will record them."""
+        params = self.resolved.get((method, index), pset)
+        row = {"scene": scene.name, "view": view, "method": method, "params": store.params_json(params),
+               "seed": self.cfg.seed, "width": self.cfg.width, "height": self.cfg.height}
+        folder = method
+        if (method, index) in self.resolved:
+            folder = self._image_folder(method, params, load_method(method))
+        return row_identity(row), str(Path("images") / scene.name / view / folder)
+
+    def _save(self) -> None:
+        store.save_results(self.run_dir, self.kept + self.rows)
 
     # ------------------------------------------------------------------ main loop
     def run(self):
@@ -200,7 +329,6 @@ class Runner:
         if cfg.out is None or self.run_dir.parent.name == "runs":
             point_latest(self.run_dir)
         renderer = ctx.info.get("GL_RENDERER", "")
-        resumable = {} if cfg.force else self._existing_rows()
 
         jobs = []
         for scene_name, scene in scenes.items():
@@ -209,8 +337,22 @@ class Runner:
                 if view not in scene.cameras:
                     raise SceneError(f"scene '{scene_name}' has no camera '{view}'; cameras: {sorted(scene.cameras)}")
                 for method in cfg.methods:
-                    for pset in expand_param_sets(cfg, method):
-                        jobs.append((scene_name, view, method, pset))
+                    for index, pset in enumerate(expand_param_sets(cfg, method)):
+                        jobs.append((scene_name, view, method, index, pset))
+
+        existing = self._existing_table()
+        self._merge_plan(existing, [self._job_identity(scenes[s], v, m, i, p) for s, v, m, i, p in jobs])
+        invocation = self._invocation_hash(scenes)
+        previous = self._read_state()
+        if not cfg.force:
+            resumable = self._resumable(existing, None)
+        elif previous.get("invocation") == invocation and not previous.get("finished", True):
+            # the same forced command, interrupted: its finished rows are not re-rendered
+            resumable = self._resumable(existing, set(previous.get("done") or []))
+        else:
+            resumable = {}
+        self._state = {"invocation": invocation, "finished": False, "done": []}
+        self._write_state()
 
         progress = None
         if cfg.progress:
@@ -218,15 +360,18 @@ class Runner:
             progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr)
         references = ReferenceProvider(self.run_dir, cfg, self.log) if cfg.references else None
         try:
-            for scene_name, view, method, pset in jobs:
+            for scene_name, view, method, index, pset in jobs:
                 if progress is not None:
                     progress.set_description(f"{scene_name}/{view}/{method}")
                 row = self._run_row(ctx, scenes[scene_name], facts[scene_name], view, method, pset,
-                                    renderer, resumable)
+                                    renderer, resumable, self.resolved.get((method, index)))
                 if references is not None and not str(row["status"]).startswith("failed"):
                     references.evaluate(row, scenes[scene_name], view)
                 self.rows.append(row)
-                store.save_results(self.run_dir, self.rows)
+                self._save()
+                if not str(row["status"]).startswith("failed") and isinstance(row.get("row_key"), str):
+                    self._state["done"].append(f"{row['row_key']}|{row['image_dir']}")
+                    self._write_state()
                 if progress is not None:
                     progress.update(1)
         finally:
@@ -234,21 +379,23 @@ class Runner:
                 progress.close()
         if references is not None:
             references.finish()
-        df = store.save_results(self.run_dir, self.rows)
+        df = store.save_results(self.run_dir, self.kept + self.rows)
+        self._state["finished"] = True
+        self._write_state()
         from bench.summary import write_summary
         write_summary(self.run_dir)
         return df
 
-    def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable) -> dict:
+    def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable, resolved=None) -> dict:
         from bench.harness import run_method
         from bench.method import resolve_params
         cfg = self.cfg
-        row = {"scene": scene.name, "view": view, "method": method_name, "params": store.params_json(pset),
-               "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": cfg.frames,
-               "warmup": cfg.warmup}
+        row = {"scene": scene.name, "scene_hash": scene.content_hash(), "view": view, "method": method_name,
+               "params": store.params_json(pset), "seed": cfg.seed, "width": cfg.width, "height": cfg.height,
+               "frames": cfg.frames, "warmup": cfg.warmup}
         try:
             cls = load_method(method_name)
-            params = resolve_params(cls, pset)
+            params = resolved if resolved is not None else resolve_params(cls, pset)
             version = method_version(cls)
         except Exception as exc:  # load failure or bad parameter: recorded, the run goes on
             return self._failed(row, exc)
@@ -260,16 +407,16 @@ class Runner:
         image_dir = self.run_dir / "images" / scene.name / view / self._image_folder(method_name, params, cls)
         row["image_dir"] = str(image_dir.relative_to(self.run_dir))
 
-        if key in resumable and (image_dir / "combined.exr").is_file():
+        if (key, row["image_dir"]) in resumable and (image_dir / "combined.exr").is_file():
             self.counts["resumed"] += 1
-            return dict(resumable[key])
+            return dict(resumable[(key, row["image_dir"])], **row)
         cached = None if cfg.force else self._cache_lookup(key)
         if cached is not None:
             cached_row, cached_dir = cached
             image_dir.mkdir(parents=True, exist_ok=True)
             for comp in IMAGE_COMPONENTS:
                 shutil.copyfile(cached_dir / f"{comp}.exr", image_dir / f"{comp}.exr")
-            cached_row.update({k: row[k] for k in ("image_dir",)})
+            cached_row.update(row)  # measured values from the cache, every label from this run
             cached_row["status"] = "cached"
             self.counts["cached"] += 1
             return cached_row
@@ -288,6 +435,10 @@ class Runner:
         images = {"direct": result.direct, "indirect": result.indirect, "combined": result.combined}
         for comp, img in images.items():
             write_exr(image_dir / f"{comp}.exr", img)
+        if not np.any(np.asarray(result.combined) > 0) and (scene.name, view) not in self._black_warned:
+            self._black_warned.add((scene.name, view))
+            self.log(f"gibench: warning: {scene.name}/{view}/{method_name} rendered an all-black image "
+                     f"(does camera '{view}' see a lit surface?)")
         med, iqr = store.summarize_samples(result.frame_ms)
         row.update({"frame_ms": med, "frame_ms_iqr": iqr, "status": "ok",
                     "skipped_stages": json.dumps(list(result.skipped_stages)),
@@ -331,14 +482,17 @@ class Runner:
         return cache_root() / "rows" / key[:2] / key
 
     def _cache_lookup(self, key: str):
+        """(row, entry folder) of a verified cache entry, or None; a bad entry is evicted with a warning."""
         d = self._cache_dir(key)
-        meta = d / "row.json"
-        if not meta.is_file() or not all((d / f"{c}.exr").is_file() for c in IMAGE_COMPONENTS):
+        if not d.is_dir():
             return None
-        try:
-            return json.loads(meta.read_text()), d
-        except (OSError, json.JSONDecodeError):
-            return None
+        problem = _cache_entry_problem(d)
+        if problem is None:
+            entry = json.loads((d / "row.json").read_bytes())
+            return dict(entry["row"]), d
+        shutil.rmtree(d, ignore_errors=True)
+        self.log(f"gibench: warning: row cache entry {d} {problem}: evicted, the row is rendered again")
+        return None
 
     def _cache_store(self, key: str, row: dict, image_dir: Path) -> None:
         d = self._cache_dir(key)
@@ -347,9 +501,13 @@ class Runner:
             if tmp.exists():
                 shutil.rmtree(tmp)
             tmp.mkdir(parents=True)
+            files = {}
             for comp in IMAGE_COMPONENTS:
                 shutil.copyfile(image_dir / f"{comp}.exr", tmp / f"{comp}.exr")
-            (tmp / "row.json").write_text(json.dumps(row, default=_json_default))
+                files[f"{comp}.exr"] = file_sha256(tmp / f"{comp}.exr")
+            clean = json.loads(json.dumps(row, default=_json_default))
+            entry = {"format": ROW_CACHE_FORMAT, "row": clean, "row_sha256": row_sha256(clean), "files": files}
+            (tmp / "row.json").write_text(json.dumps(entry, default=_json_default))
             if d.exists():
                 shutil.rmtree(d)
             os.replace(tmp, d)
@@ -365,6 +523,47 @@ class Runner:
         if total and c["ok"] == 0 and c["failed"] == 0:
             msg += " (nothing re-run: every row was unchanged)"
         return msg
+
+
+def _cache_entry_problem(d: Path) -> str | None:
+    """Why a row cache entry cannot be trusted (one phrase), or None when every checksum holds."""
+    try:
+        entry = json.loads((d / "row.json").read_bytes())
+    except FileNotFoundError:
+        return "has no row.json"
+    except (OSError, ValueError):
+        return "has an unreadable row.json (not JSON)"
+    if not isinstance(entry, dict) or entry.get("format") != ROW_CACHE_FORMAT:
+        return "has no checksums (damaged, or written by an older gibench)"
+    row, files = entry.get("row"), entry.get("files")
+    if not isinstance(row, dict) or not isinstance(files, dict) or not isinstance(entry.get("row_sha256"), str):
+        return "has a malformed row.json"
+    if row_sha256(row) != entry["row_sha256"]:
+        return "has a row.json whose checksum does not match"
+    if not all(isinstance(row.get(k), str) for k in ("scene", "method", "status")):
+        return "has a row without scene, method or status"
+    for comp in IMAGE_COMPONENTS:
+        name = f"{comp}.exr"
+        try:
+            ok = files.get(name) == file_sha256(d / name)
+        except OSError:
+            return f"lacks {name}"
+        if not ok:
+            return f"has a damaged {name} (checksum mismatch)"
+    return None
+
+
+def _prepare_run_dir(run_dir: Path) -> None:
+    """Create the run folder; an unusable --out is bad input (ValueError, one line)."""
+    if run_dir.exists() and not run_dir.is_dir():
+        raise ValueError(f"--out {run_dir} is a file, not a run folder")
+    try:
+        run_dir.mkdir(parents=True, exist_ok=True)
+        probe = run_dir / f".write-test{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise ValueError(f"--out {run_dir} is not a writable folder ({exc.strerror or exc})") from None
 
 
 def _json_default(o):

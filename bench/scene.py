@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 from dataclasses import dataclass, field
 from typing import Union
 
@@ -25,6 +26,20 @@ import numpy as np
 
 class SceneError(ValueError):
     """Bad scene input. The message is one line that names the scene and the culprit."""
+
+
+# A scene name becomes a folder name under a run's images/ and references/: letters, digits
+# and `_ . + = -`, starting with a letter, digit or `_`, no "..", at most 100 characters, so
+# no name can reach outside the run folder or collide with a hidden file.
+SCENE_NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+=-]{0,99}")
+
+
+def check_scene_name(name) -> str:
+    """`name` if it is safe as a folder name (SCENE_NAME_PATTERN), else SceneError (one line)."""
+    if not isinstance(name, str) or not SCENE_NAME_PATTERN.fullmatch(name) or ".." in name:
+        raise SceneError(f"scene name {name!r} is not allowed: use 1-100 letters, digits and _ . + = - "
+                         f"(starting with a letter, digit or _, no '..')")
+    return name
 
 
 def _vec3(value, what: str) -> np.ndarray:
@@ -211,6 +226,7 @@ class Scene:
         squared bounding-box diagonal) are dropped and counted in `dropped_degenerate`.
         normals: per-vertex shading normals; computed area-weighted from faces when None.
         """
+        check_scene_name(name)
         vertices = np.asarray(vertices, dtype=np.float64)
         faces = np.asarray(faces)
         if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:

@@ -80,6 +80,10 @@ albedo is taken per geometry), `process=False`, textures skipped. Files that use
 face indices interleaved with vertices, or a TAB after `v`/`vt`, load wrongly in trimesh:
 normalise them first.
 
+The scene name is a folder name in run folders: letters, digits and `_ . + = -` only
+(`bench.scene.SCENE_NAME_PATTERN`; `../x` is an error). A mesh `file` that resolves (symbolic
+links followed) outside the scene file's folder is an error unless the file sets `allow_meshes_outside = true` at its top level (default false).
+
 Every bad input raises `SceneError` with a one-line message naming the file and the culprit:
 missing or unreadable mesh, non-finite vertex, no light, no camera, unknown key (naming the key
 and its table), wrong type.
@@ -95,9 +99,10 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.scene import Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight
+from bench.scene import Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight, check_scene_name
 
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off", ".npz")
+_TEXT_SUFFIXES = (".obj", ".gltf", ".off")  # formats with no binary variant: must be UTF-8 text
 NPZ_FORMAT = "gibench-mesh"
 NPZ_VERSION = 1
 DEFAULT_CREASE_ANGLE_DEG = 45.0
@@ -218,9 +223,18 @@ def read_mesh(path, crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG, file_nor
         raise SceneError(f"mesh file '{path}': unsupported format '{suffix}' (supported: {', '.join(MESH_SUFFIXES)})")
     if suffix == ".npz":
         return read_mesh_npz(path)
+    if suffix in _TEXT_SUFFIXES:
+        try:
+            path.read_bytes().decode("utf-8")
+        except UnicodeDecodeError as exc:
+            raise SceneError(f"mesh file '{path}' is not a {suffix} file: byte {exc.start} is not UTF-8 text") from None
+        except OSError as exc:
+            raise SceneError(f"mesh file '{path}' is unreadable ({exc.strerror})") from None
     import trimesh
     try:
         loaded = trimesh.load(str(path), force="scene", process=False)
+    except ImportError:  # trimesh's fallbacks for undecodable text import optional modules
+        raise SceneError(f"mesh file '{path}' is not a valid {suffix} file (trimesh cannot parse it)") from None
     except Exception as exc:  # trimesh raises many types for a bad file
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise SceneError(f"mesh file '{path}' is unreadable ({type(exc).__name__}: {msg})") from None
@@ -461,7 +475,7 @@ def transformed(mesh: MeshData, matrix: np.ndarray) -> MeshData:
 
 
 # ---------------------------------------------------------------------------- TOML schema
-_TOP_KEYS = ("name", "purpose", "default_albedo", "mesh", "light", "camera")
+_TOP_KEYS = ("name", "purpose", "default_albedo", "allow_meshes_outside", "mesh", "light", "camera")
 _MESH_KEYS = ("file", "translate", "rotate_deg", "scale", "albedo", "materials", "exclude_materials",
               "crease_angle_deg", "file_normals")
 _LIGHT_KEYS = {
@@ -539,7 +553,7 @@ class _Ctx:
         return value
 
 
-def _parse_mesh(ctx: _Ctx, base: Path, index: int, table: dict, default_albedo) -> tuple:
+def _parse_mesh(ctx: _Ctx, base: Path, index: int, table: dict, default_albedo, allow_outside: bool = False) -> tuple:
     where = f"[[mesh]] #{index + 1}" + (f" ('{table['file']}')" if isinstance(table.get("file"), str) else "")
     ctx.keys(table, _MESH_KEYS, where)
     file = ctx.string(ctx.require(table, "file", where), "file", where)
@@ -565,6 +579,9 @@ def _parse_mesh(ctx: _Ctx, base: Path, index: int, table: dict, default_albedo) 
         raise ctx.error(where, f"'exclude_materials' must be a list of strings, got {exclude!r}")
 
     mesh_path = (base / file) if not Path(file).is_absolute() else Path(file)
+    if not allow_outside and not mesh_path.resolve().is_relative_to(base.resolve()):
+        raise ctx.error(where, f"mesh file '{file}' is outside the scene file's folder; set "
+                               f"allow_meshes_outside = true at the top level to use it")
     try:
         mesh = read_mesh(mesh_path, crease_angle_deg=crease, file_normals=use_file_normals)
     except SceneError as exc:
@@ -647,6 +664,9 @@ def load_scene_file(path) -> Scene:
 
     ctx.keys(doc, _TOP_KEYS, "top level")
     name = ctx.string(doc.get("name", path.stem), "name", "top level")
+    allow_outside = doc.get("allow_meshes_outside", False)
+    if not isinstance(allow_outside, bool):
+        raise ctx.error("top level", f"'allow_meshes_outside' must be true or false, got {allow_outside!r}")
     purpose = ctx.string(doc.get("purpose", ""), "purpose", "top level")
     default_albedo = ctx.rgb(doc.get("default_albedo", DEFAULT_ALBEDO), "default_albedo", "top level", 0.0, 1.0)
     meshes = ctx.table_list(doc.get("mesh", []), "mesh", "top level")
@@ -656,6 +676,10 @@ def load_scene_file(path) -> Scene:
         raise ctx.error("top level", f"'camera' must be a table of named cameras ([camera.NAME]), got {type(cameras).__name__}")
     if not name:
         raise ctx.error("top level", "'name' must not be empty")
+    try:
+        check_scene_name(name)
+    except SceneError as exc:
+        raise ctx.error("top level", str(exc)) from None
     if not meshes:
         raise ctx.error("top level", "no mesh (add a [[mesh]] table with file = ...)")
     if not lights:
@@ -669,7 +693,7 @@ def load_scene_file(path) -> Scene:
     verts, norms, faces, albedo = [], [], [], []
     offset = dropped_duplicates = 0
     for i, table in enumerate(meshes):
-        mesh, tri_albedo = _parse_mesh(ctx, base, i, table, default_albedo)
+        mesh, tri_albedo = _parse_mesh(ctx, base, i, table, default_albedo, allow_outside)
         verts.append(mesh.vertices)
         norms.append(mesh.normals)
         faces.append(mesh.faces + offset)

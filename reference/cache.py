@@ -7,6 +7,12 @@ scene content, camera, resolution, component, integrator settings, reference cod
 Mitsuba version and variant. It excludes the sample count and the error target, so a later
 request for a lower noise floor continues from the stored sums instead of starting over.
 Entries are written atomically (temporary folder + rename).
+
+Integrity: meta.json records the sha256 of each image (`files`). `load` verifies them; an
+entry whose meta.json is unreadable, whose images do not match their checksums or cannot be
+read, is a miss: it is evicted with a one-line warning and the reference is rendered again.
+An entry written before checksums existed (no `files`) is checked for readability and shape,
+then gets its checksums added (from then on a changed image is detected).
 """
 from __future__ import annotations
 
@@ -14,6 +20,7 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -22,6 +29,7 @@ from bench.imageio import read_exr, write_exr
 from reference.render import Moments
 
 SOURCES = ("convert.py", "integrators.py", "render.py")
+IMAGES = ("mean.exr", "m2.exr", "hits.exr")
 
 
 def cache_root() -> Path:
@@ -46,19 +54,55 @@ def entry_dir(key: str, root: Path | None = None) -> Path:
     return (root or cache_root()) / key[:2] / key
 
 
+def _sha256(path: Path) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+
+
+def _evict(d: Path, problem: str) -> None:
+    shutil.rmtree(d, ignore_errors=True)
+    print(f"gibench: warning: reference cache entry {d} {problem}: evicted, the reference is rendered again",
+          file=sys.stderr)
+
+
 def load(key: str, root: Path | None = None):
-    """(Moments, meta) of a stored entry, or None."""
+    """(Moments, meta) of a stored entry whose checksums hold, or None (a bad entry is evicted)."""
     d = entry_dir(key, root)
+    if not d.is_dir():
+        return None
     try:
-        meta = json.loads((d / "meta.json").read_text())
+        meta = json.loads((d / "meta.json").read_bytes())
+    except (OSError, ValueError):
+        _evict(d, "has an unreadable meta.json")
+        return None
+    if not isinstance(meta, dict):
+        _evict(d, "has a malformed meta.json")
+        return None
+    files = meta.get("files")
+    try:
+        if files is not None:
+            for name in IMAGES:
+                if not isinstance(files, dict) or files.get(name) != _sha256(d / name):
+                    _evict(d, f"has a damaged {name} (checksum mismatch)")
+                    return None
         mean = read_exr(d / "mean.exr").astype(np.float64)
         m2 = read_exr(d / "m2.exr").astype(np.float64)
         hits = read_exr(d / "hits.exr")[..., 0].astype(np.float64)
-    except (OSError, ValueError, KeyError, json.JSONDecodeError):
+        spp = int(meta.get("spp", 0))
+    except (OSError, ValueError, TypeError) as exc:
+        _evict(d, f"is unreadable ({' '.join(str(exc).split()) or type(exc).__name__})")
         return None
-    if mean.shape != m2.shape or mean.shape[:2] != hits.shape or int(meta.get("spp", 0)) < 1:
+    if mean.shape != m2.shape or mean.shape[:2] != hits.shape or spp < 1:
+        _evict(d, "has images of mismatched shapes or no samples")
         return None
-    return Moments(int(meta["spp"]), mean, m2, hits), meta
+    if files is None:  # written before checksums: readable and consistent, so record them now
+        meta["files"] = {name: _sha256(d / name) for name in IMAGES}
+        try:
+            tmp = d / f".meta.json.tmp{os.getpid()}"
+            tmp.write_text(json.dumps(meta, indent=1, default=str))
+            os.replace(tmp, d / "meta.json")
+        except OSError:
+            pass
+    return Moments(spp, mean, m2, hits), meta
 
 
 def store(key: str, moments: Moments, meta: dict, root: Path | None = None) -> Path | None:
@@ -73,6 +117,7 @@ def store(key: str, moments: Moments, meta: dict, root: Path | None = None) -> P
         write_exr(tmp / "mean.exr", moments.mean)
         write_exr(tmp / "m2.exr", moments.m2)
         write_exr(tmp / "hits.exr", moments.hits[..., None])
+        meta = dict(meta, files={name: _sha256(tmp / name) for name in IMAGES})
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1, default=str))
         if d.exists():
             shutil.rmtree(d, ignore_errors=True)

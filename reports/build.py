@@ -33,7 +33,10 @@ from bench.sweep import SPEEDUP_COMPONENTS, load_curves, pareto_table, sweep_tab
 
 from . import plots
 
-METRIC_NAMES = ("mse", "relmse", "smape", "dssim", "flip_mean", "flip_median", "ciede2000")
+METRIC_NAMES = ("mse", "relmse", "smape", "dssim", "flip_mean", "flip_median", "ciede2000", "mean_ratio")
+# mean_ratio (image mean / reference mean) is a bias figure: best is closest to 1, not lowest.
+CLOSEST_TO_ONE = ("mean_ratio",)
+EXTRA_METRIC_DOCS = {"mean_ratio": "image mean / reference mean on covered pixels: 1 is unbiased in the mean (best: closest to 1)"}
 ERROR_COMPONENTS = ("indirect", "indirect_visible", "combined", "direct")
 REFERENCE_COMPONENTS = ("direct", "indirect_unshadowed", "indirect_visible")
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
@@ -214,7 +217,13 @@ def overview_tables(table: pd.DataFrame, views: list[tuple[str, str]], facts: di
         sub = "<tr><th class='l'>method</th>" + "".join(
             f"<th>ms</th><th>{esc(metric) if metric else 'error'}</th>" for _ in views) + "</tr>"
         best_t = {sv: _finite_min(lookup.get((l, *sv), {}).get("frame_ms") for l in labels) for sv in views}
-        best_e = {sv: _finite_min(lookup.get((l, *sv), {}).get(metric) for l in labels) for sv in views} if metric else {}
+        if metric and metric.split(".", 1)[0] in CLOSEST_TO_ONE:
+            def badness(v):
+                return abs(np.log(v)) if v is not None and np.isfinite(v) and v > 0 else None
+        else:
+            def badness(v):
+                return v
+        best_e = {sv: _finite_min(badness(lookup.get((l, *sv), {}).get(metric)) for l in labels) for sv in views} if metric else {}
         body = []
         for label in labels:
             cells = [f"<td class='l'>{esc(label)}</td>"]
@@ -223,7 +232,7 @@ def overview_tables(table: pd.DataFrame, views: list[tuple[str, str]], facts: di
                 t = rec.get("frame_ms")
                 cells.append(_cell(t, "best" if t is not None and t == best_t[sv] else ""))
                 e = rec.get(metric) if metric else None
-                cells.append(_cell(e, "best" if metric and e is not None and e == best_e[sv] else ""))
+                cells.append(_cell(e, "best" if metric and e is not None and badness(e) == best_e[sv] else ""))
             body.append("<tr>" + "".join(cells) + "</tr>")
         return f"<table class='data'><thead>{group}{sub}</thead><tbody>{''.join(body)}</tbody></table>"
 
@@ -338,7 +347,7 @@ def metrics_html(metric_cols: list[str]) -> str:
     names = [m for m in METRIC_NAMES if m in METRICS or m in used]
     if not names:
         return ""
-    items = "".join(f"<dt>{esc(m)}</dt><dd>{esc(METRICS.get(m, 'description unavailable'))}</dd>" for m in names)
+    items = "".join(f"<dt>{esc(m)}</dt><dd>{esc(METRICS.get(m, EXTRA_METRIC_DOCS.get(m, 'description unavailable')))}</dd>" for m in names)
     comps = ("Components: <b>indirect</b> = method indirect vs Mitsuba one-bounce without indirect visibility; "
              "<b>indirect_visible</b> = vs the bounce with visibility; <b>combined</b> = direct + indirect vs "
              "Mitsuba direct + indirect with visibility; <b>direct</b> = direct vs direct.")

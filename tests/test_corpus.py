@@ -10,7 +10,8 @@ from bench.corpus.procedural import sphere_inside_indirect
 from bench.scene import SceneError, compute_facts
 
 REPO = Path(__file__).resolve().parents[1]
-SMALL = ("cornell_spot", "cornell_tiled", "rooms", "hidden_bounce", "big_floor", "sphere_inside", "highpoly_10k")
+SMALL = ("cornell_spot", "cornell_tiled", "rooms", "hidden_bounce", "big_floor", "lit_wall_corner", "sphere_inside",
+         "highpoly_10k")
 REAL = {  # expected triangles: file count - duplicates (import) - zero-area (Scene.build) +- edits
     "cornell_box": 36 - 4 - 2,        # 4 duplicated 'Bottom Face' triangles, the 2-triangle emitter quad dropped
     "sponza": 66_450 - 10 - 6,

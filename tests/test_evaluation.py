@@ -26,7 +26,7 @@ def test_columns_and_component_pairing():
     images = {"direct": refs["direct"].copy(), "indirect": fill([0.2, 0.2, 0.2])}
     images["combined"] = images["direct"] + images["indirect"]
     out = evaluate_row(images, refs)
-    assert set(out) == {f"{m}.{c}" for m in METRICS for c in COMPARISONS}
+    assert set(out) == {f"{m}.{c}" for m in (*METRICS, "mean_ratio") for c in COMPARISONS}
     # direct matches, indirect equals the unshadowed reference, so only the visibility difference remains
     for m in METRICS:
         assert out[f"{m}.direct"] == pytest.approx(0.0, abs=1e-12), m
@@ -36,7 +36,8 @@ def test_columns_and_component_pairing():
     # MSE over covered pixels only: indirect 0.2 against visible 0.3 -> 0.01 (background excluded)
     assert out["mse.indirect_visible"] == pytest.approx(0.01, rel=1e-6)
     assert out["mse.combined"] == pytest.approx(0.01, rel=1e-6)
-    assert out["relmse.indirect_visible"] == pytest.approx(0.01 / (0.09 + 0.01), rel=1e-6)
+    # epsilon relative to the reference's level: 0.01 * mean(r^2) = 0.01 * 0.09 (issue #15)
+    assert out["relmse.indirect_visible"] == pytest.approx(0.01 / (0.09 + 0.01 * 0.09), rel=1e-6)
 
 
 def test_mask_includes_method_light_on_background():
@@ -56,7 +57,7 @@ def test_missing_reference_component_leaves_columns_out():
     images = {"direct": refs["direct"].copy(), "indirect": fill([0.3, 0.3, 0.3])}
     images["combined"] = images["direct"] + images["indirect"]
     out = evaluate_row(images, {"direct": refs["direct"], "indirect_unshadowed": None, "indirect_visible": None})
-    assert set(out) == {f"{m}.direct" for m in METRICS}
+    assert set(out) == {f"{m}.direct" for m in (*METRICS, "mean_ratio")}
     assert all(math.isfinite(v) for v in out.values())
 
 
@@ -80,3 +81,20 @@ def test_bad_input_names_the_culprit():
     images["direct"][5, 5, 0] = np.nan
     with pytest.raises(ValueError, match="image has 1 pixel"):
         evaluate_row(images, refs)
+
+
+def test_mean_ratio_is_image_mean_over_reference_mean_on_covered_pixels():
+    cover, fill, refs = scene_images()
+    images = {"direct": refs["direct"].copy(), "indirect": fill([0.1, 0.1, 0.1])}
+    images["combined"] = images["direct"] + images["indirect"]
+    out = evaluate_row(images, refs)
+    assert out["mean_ratio.direct"] == pytest.approx(1.0)
+    assert out["mean_ratio.indirect"] == pytest.approx(0.5)          # 0.1 / 0.2 unshadowed
+    assert out["mean_ratio.indirect_visible"] == pytest.approx(1 / 3)  # 0.1 / 0.3 visible
+    # the background does not dilute it: the same figure on a larger black frame
+    big = {k: np.pad(v, ((0, 10), (0, 10), (0, 0))) for k, v in images.items()}
+    big_refs = {k: np.pad(v, ((0, 10), (0, 10), (0, 0))) for k, v in refs.items()}
+    assert evaluate_row(big, big_refs)["mean_ratio.indirect"] == pytest.approx(0.5)
+    # a black reference gives no column, not a division error
+    dark = dict(refs, indirect_unshadowed=np.zeros_like(refs["indirect_unshadowed"]))
+    assert "mean_ratio.indirect" not in evaluate_row(images, dark)

@@ -171,3 +171,64 @@ def test_harness_frame_and_stage_samples_per_clock(gl_ctx, open_box, monkeypatch
         assert [enabled for _, enabled in calls] == [True, False, False, False, True, True, True]
     else:
         assert len(calls) == 4 and all(enabled for _, enabled in calls)
+
+
+def _far_panel_scene(gap):
+    """A 3 x 3 m panel `gap` metres in front of a 16 x 16 m wall, 35 m down the axis of a spot
+    light and of the camera; the wall comes first in the triangle order, so when the depth test
+    cannot tell the two apart the wall (drawn first) wins."""
+    z_wall, z_panel, a, b = -35.0 - gap, -35.0, 8.0, 1.5
+    v = np.array([[-a, -a, z_wall], [a, -a, z_wall], [a, a, z_wall], [-a, a, z_wall],
+                  [-b, -b, z_panel], [b, -b, z_panel], [b, b, z_panel], [-b, b, z_panel]], float)
+    f = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    spot = SpotLight([0, 0, 0], [0, 0, -35], 1000.0, cutoff_angle_deg=10, beam_width_deg=8)
+    return Scene.build("far_panel", v, f, [0.5, 0.5, 0.5], [spot],
+                       {"main": Camera([0.3, 0.2, 0], [0, 0, -35], fov_y_deg=8)})
+
+
+def test_depth_test_orders_close_surfaces_at_the_far_end(gl_ctx):
+    """2 cm between panel and wall 35 m away is far below a 24-bit 1/z depth buffer's step there
+    (~20 cm for the shadow map's near = 1e-5 far) but well above the shadow tolerance (~1.3 cm):
+    the GBuffer and the shadow map must both keep the panel, the nearer surface."""
+    from bench.gl import GpuScene, SharedPasses, StageProfiler
+    from bench.gl.passes import read_rgba
+    gap = 0.02
+    scene = _far_panel_scene(gap)
+    g = render_gbuffer(gl_ctx, scene, "main", 64, 64)
+    gpu = GpuScene(gl_ctx, scene)
+    try:
+        view = gpu.view("main", 64, 64)
+        eye, d = view.primary_rays()
+        t = (-35.0 - eye[2]) / d[..., 2]
+        hit = eye + t[..., None] * d
+        on_panel = (np.abs(hit[..., 0]) < 1.45) & (np.abs(hit[..., 1]) < 1.45)
+        assert on_panel.sum() > 500
+        assert np.all(g["triangle"][on_panel] >= 2), "the wall behind the panel won the GBuffer depth test"
+        assert np.all(np.abs(g["position"][on_panel][:, 2] + 35.0) < 1e-3)
+
+        passes = SharedPasses(gpu, view, {"direct", "shadow_map"}, shadow_resolution=512)
+        passes.render(StageProfiler(gl_ctx))
+        layer = passes.shadows.layers[0]
+        stored = read_rgba(passes.shadows.atlas)[::-1, :, 0]  # GL rows: row 0 at the bottom
+        res = passes.shadows.resolution
+        c = (np.arange(res) + 0.5) / res * 2 - 1
+        ndc = np.stack(np.meshgrid(c, c), -1)
+        far_pt = np.einsum("ij,hwj->hwi", np.linalg.inv(layer.view_proj),
+                           np.concatenate([ndc, np.ones(ndc.shape[:2] + (2,))], -1))
+        ray = far_pt[..., :3] / far_pt[..., 3:]
+        light = scene.lights[0].position - gpu.origin
+        ray = (ray - light) / np.linalg.norm(ray - light, axis=-1, keepdims=True)
+        t = (-35.0 - gpu.origin[2] - light[2]) / ray[..., 2]
+        hit = light + t[..., None] * ray + gpu.origin
+        texel_on_panel = (np.abs(hit[..., 0]) < 1.45) & (np.abs(hit[..., 1]) < 1.45)
+        assert texel_on_panel.sum() > 1000
+        err = np.abs(stored[texel_on_panel] - t[texel_on_panel])
+        assert err.max() < 0.25 * gap, f"shadow map keeps the wall on {np.mean(err > 0.5 * gap):.0%} of the panel"
+        # end to end: the panel and the lit wall around it are lit everywhere (no acne at 35 m)
+        direct = passes.direct.read()
+        unshadowed = render_direct(gl_ctx, scene, "main", 64, 64, shadows=False)
+        covered = g["mask"]
+        assert np.allclose(direct[covered], unshadowed[covered], rtol=1e-4, atol=0)
+        passes.release()
+    finally:
+        gpu.release()

@@ -32,10 +32,29 @@ def test_per_pixel_metrics_hand_computed():
     img = np.array([[[2.0, 1.0, 1.0], [2.0, 0.5, 2.0]]])
     # errors per channel: 1, 0, 0 | 0, 0.5, 0
     assert M.mse(img, ref) == pytest.approx((1 + 0.25) / 6)
-    assert M.relmse(img, ref) == pytest.approx((1 / (1 + 0.01) + 0.25 / (0 + 0.01)) / 6)
-    assert M.smape(img, ref) == pytest.approx((1 / (3 + 0.01) + 0.5 / (0.5 + 0.01)) / 6)
-    assert M.EPS_RELMSE == 0.01 and M.EPS_SMAPE == 0.01
-    assert "r^2 + 0.01" in M.METRICS["relmse"] and "+ 0.01" in M.METRICS["smape"]
+    # epsilons relative to the reference's level (issue #15): 0.01 * mean(r^2), 0.01 * mean|r|
+    e_rel, e_smape = 0.01 * (1 + 1 + 1 + 4 + 0 + 4) / 6, 0.01 * (1 + 1 + 1 + 2 + 0 + 2) / 6
+    assert M.relmse_epsilon(ref) == pytest.approx(e_rel) and M.smape_epsilon(ref) == pytest.approx(e_smape)
+    assert M.relmse(img, ref) == pytest.approx((1 / (1 + e_rel) + 0.25 / (0 + e_rel)) / 6)
+    assert M.smape(img, ref) == pytest.approx((1 / (3 + e_smape) + 0.5 / (0.5 + e_smape)) / 6)
+    assert M.relmse(img, ref, eps=0.01) == pytest.approx((1 / (1 + 0.01) + 0.25 / (0 + 0.01)) / 6)
+    assert "0.01 * mean(r^2)" in M.METRICS["relmse"] and "0.01 * mean|r|" in M.METRICS["smape"]
+
+
+@pytest.mark.parametrize("scale", [0.002, 0.08, 37.0])
+def test_relative_metrics_are_scale_invariant(scale):
+    """The same relative error at the brightness of big_floor's indirect light (~0.002) or of a
+    bright view gives the same relmse and smape (an absolute epsilon made relmse ~ MSE / 0.01)."""
+    img, ref = (a.astype(np.float64) for a in random_pair())
+    img[0, 0] = 0.0
+    ref[1, 1] = 0.0  # black pixels in either image
+    mask = np.ones(ref.shape[:2], bool)
+    mask[:, :3] = False
+    for fn in (M.relmse, M.smape):
+        assert fn(img * scale, ref * scale, mask) == pytest.approx(fn(img, ref, mask), rel=1e-9), fn.__name__
+    # an all-black reference falls back to the absolute epsilons: finite, not a division by zero
+    zero = np.zeros_like(ref)
+    assert np.isfinite(M.relmse(img, zero)) and np.isfinite(M.smape(img, zero))
 
 
 def test_dssim_hand_computed_constant_images():

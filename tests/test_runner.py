@@ -85,10 +85,11 @@ def test_failures_are_recorded_and_others_go_on(tmp_path, monkeypatch):
     status = dict(zip(df.method, df.status))
     assert status["broken"].startswith("failed: method 'broken' failed to load")
     assert status["direct"] == "ok"
-    # an out-of-range parameter fails that row only
-    df, _ = run(cfg(tmp_path, out="p", params={"manylights": [{"jitter_frames": 0}]}), log=lambda m: None)
-    status = dict(zip(df.method, df.status))
-    assert "jitter_frames" in status["manylights"] and status["direct"] in ("ok", "cached")
+    # an out-of-range parameter is bad input, found before the first row (issue #15: it used to fail
+    # its rows one by one while the run "succeeded")
+    with pytest.raises(ValueError, match="jitter_frames"):
+        run(cfg(tmp_path, out="p", params={"manylights": [{"jitter_frames": 0}]}), log=lambda m: None)
+    assert not (tmp_path / "p" / "results.csv").exists()
 
 
 def test_skipped_rows(tmp_path):
@@ -116,3 +117,108 @@ def test_interrupted_run_resumes(tmp_path, monkeypatch):
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "other-cache"))  # no help from the cache
     df, runner = run(cfg(tmp_path, out="r"), log=lambda m: None)
     assert runner.counts["resumed"] == 1 and runner.counts["ok"] == 1 and len(df) == 2
+
+
+# ---------------------------------------------------------------------------- issue #15: merge, force, bad input
+def test_rerun_into_the_same_folder_keeps_other_rows(tmp_path):
+    """Fewer methods or another resolution used to drop the earlier rows and orphan their images."""
+    run(cfg(tmp_path, out="r"), log=lambda m: None)
+    df, _ = run(cfg(tmp_path, out="r", methods=["direct"], width=40, height=32), log=lambda m: None)
+    assert len(df) == 3
+    got = {(r["method"], r["width"]): r for r in df.to_dict("records")}
+    assert set(got) == {("direct", 32), ("manylights", 32), ("direct", 40)}
+    for rec in got.values():  # every row's images exist at its own size
+        img = read_exr(tmp_path / "r" / rec["image_dir"] / "combined.exr")
+        assert img.shape == (rec["height"], rec["width"], 3)
+    assert got[("direct", 32)]["image_dir"] != got[("direct", 40)]["image_dir"]
+    on_disk = pd.read_csv(tmp_path / "r/results.csv")
+    assert len(on_disk) == 3
+    # the same command again replaces its own rows, nothing else
+    df, runner = run(cfg(tmp_path, out="r", methods=["direct"], width=40, height=32), log=lambda m: None)
+    assert len(df) == 3 and runner.counts["resumed"] == 1
+
+
+def test_interrupted_forced_run_resumes(tmp_path, monkeypatch):
+    """--force re-renders, but an interrupted forced run resumes like any other."""
+    from bench import runner as runner_mod
+    run(cfg(tmp_path, out="f"), log=lambda m: None)
+    calls = {"n": 0}
+    real = runner_mod.Runner._run_row
+
+    def interrupt_second(self, *a, **k):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt
+        return real(self, *a, **k)
+
+    monkeypatch.setattr(runner_mod.Runner, "_run_row", interrupt_second)
+    with pytest.raises(KeyboardInterrupt):
+        run(cfg(tmp_path, out="f", force=True), log=lambda m: None)
+    monkeypatch.setattr(runner_mod.Runner, "_run_row", real)
+    df, runner = run(cfg(tmp_path, out="f", force=True), log=lambda m: None)
+    assert runner.counts == {"ok": 1, "cached": 0, "resumed": 1, "failed": 0, "skipped": 0}
+    # a finished forced run, run again with --force, re-renders everything
+    df, runner = run(cfg(tmp_path, out="f", force=True), log=lambda m: None)
+    assert runner.counts["ok"] == 2 and runner.counts["resumed"] == 0
+
+
+def test_params_are_checked_before_the_first_row(tmp_path):
+    with pytest.raises(ValueError, match="--param given for method\\(s\\) flc not in this run"):
+        run(cfg(tmp_path, out="p", params={"flc": [{}]}), log=lambda m: None)
+    with pytest.raises(ValueError, match="unknown parameter"):
+        run(cfg(tmp_path, out="p", params={"manylights": [{}, {"no_such_knob": 1}]}), log=lambda m: None)
+    assert not (tmp_path / "p").exists()
+
+
+def test_unusable_out_is_one_line(tmp_path):
+    (tmp_path / "file").write_text("x")
+    with pytest.raises(ValueError, match="is a file, not a run folder"):
+        run(cfg(tmp_path, out="file"), log=lambda m: None)
+    with pytest.raises(ValueError, match="not a writable folder"):
+        run(cfg(tmp_path, out="file/sub"), log=lambda m: None)
+
+
+def test_all_black_view_warns(tmp_path):
+    from bench.scene import Camera
+    scene = make_open_box()
+    away = Scene_with_camera(scene, Camera([0, 1, 3.5], [0, 1, 10], fov_y_deg=20))
+    logs = []
+    run(cfg(tmp_path, out="k", scenes=[away]), log=logs.append)
+    warnings = [m for m in logs if "all-black" in m]
+    assert len(warnings) == 1 and "open_box/main" in warnings[0]  # once per view, not once per method
+    logs.clear()
+    run(cfg(tmp_path, out="k2"), log=logs.append)
+    assert not [m for m in logs if "all-black" in m]
+
+
+def Scene_with_camera(scene, camera):
+    from bench.scene import Scene
+    return Scene.build(scene.name, scene.vertices, scene.faces, scene.albedo, scene.lights, {"main": camera},
+                       normals=scene.normals)
+
+
+def test_corrupt_results_tables_are_detected(tmp_path):
+    from bench.results import ResultsError, load_results
+    run(cfg(tmp_path, out="t"), log=lambda m: None)
+    d = tmp_path / "t"
+    good = load_results(d)
+    # a CSV cut mid-line, with the parquet intact: the parquet (its checksum holds) is used
+    csv = (d / "results.csv").read_bytes()
+    (d / "results.csv").write_bytes(csv[:-40])
+    assert len(load_results(d)) == len(good)
+    # both damaged: an error naming the folder, not a short row
+    (d / "results.parquet").write_bytes(b"PAR1 junk")
+    with pytest.raises(ResultsError, match="neither results.parquet nor results.csv"):
+        load_results(d)
+    # without checksums (an older gibench, or files written by hand)
+    (d / "results.checksums.json").unlink()
+    (d / "results.parquet").unlink()
+    with pytest.raises(ResultsError, match="cut mid-line"):
+        load_results(d)
+    good.to_csv(d / "results.csv", index=False)
+    good.iloc[:1].to_parquet(d / "results.parquet", index=False)
+    with pytest.raises(ResultsError, match="disagree"):
+        load_results(d)
+    # and a run into that folder says so instead of dropping the rows
+    with pytest.raises(ResultsError):
+        run(cfg(tmp_path, out="t"), log=lambda m: None)

@@ -70,3 +70,16 @@ def test_spot_falloff_is_mitsubas():
     s = SpotLight([0, 1, 0], [0, 0, 0], 1.0, cutoff_angle_deg=30, beam_width_deg=20)
     cos = np.cos(np.radians([0, 19.9, 25, 29.9, 30.1]))
     assert np.allclose(s.falloff(cos), [1, 1, 0.5, 0.01, 0], atol=1e-6)
+
+
+@pytest.mark.parametrize("name", ["../../escape", "a/b", "/abs", ".hidden", "", "a b", "a..b", "x" * 101, 3])
+def test_unsafe_names_are_rejected(name):
+    """The name becomes a folder under a run's images/ and references/ (issue #15)."""
+    with pytest.raises(SceneError, match="is not allowed") as info:
+        build(name=name)
+    assert "\n" not in str(info.value)
+
+
+def test_corpus_style_names_are_safe():
+    for name in ("cornell_spot", "rooms-n3", "big_floor-size2.5-height-0.5", "open_box"):
+        assert build(name=name).name == name

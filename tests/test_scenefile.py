@@ -217,3 +217,45 @@ def test_npz_round_trip_and_toml_reference(tmp_path):
     path.write_text(scene_text(mesh_file="junk.npz"))
     with pytest.raises(SceneError, match="junk.npz' is unreadable"):
         load_scene_file(path)
+
+
+# ---------------------------------------------------------------------------- issue #15: names and paths
+@pytest.mark.parametrize("name", ["../../escape", "a/b", ".hidden", "", "x y", "..", "a..b", "é"])
+def test_unsafe_scene_names_are_rejected(tmp_path, name):
+    """A scene name is a folder of every run: `../../escape` wrote images outside --out."""
+    with pytest.raises(SceneError) as info:
+        load_scene_file(write_scene(tmp_path, scene_text(top=f'name = "{name}"\n')))
+    assert "\n" not in str(info.value) and "scene.toml" in str(info.value)
+
+
+def test_safe_scene_names_load(tmp_path):
+    for name in ("rooms-n3", "big_floor-size2.5", "A_b.c+d=e"):
+        assert load_scene_file(write_scene(tmp_path, scene_text(top=f'name = "{name}"\n'))).name == name
+
+
+def test_mesh_outside_the_scene_folder_needs_opt_in(tmp_path):
+    outside = tmp_path / "meshes"
+    outside.mkdir()
+    (outside / "q.obj").write_text(QUAD_OBJ.replace("mtllib m.mtl\n", ""))
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    for file in ("../meshes/q.obj", str(outside / "q.obj")):
+        path = write_scene(folder, scene_text(mesh_file=file))
+        with pytest.raises(SceneError) as info:
+            load_scene_file(path)
+        _assert_one_line(info, "scene.toml", "outside the scene file's folder", "allow_meshes_outside = true")
+        path.write_text(scene_text(mesh_file=file, top="allow_meshes_outside = true\n"))
+        assert load_scene_file(path).triangle_count == 2
+    path.write_text(scene_text(top='allow_meshes_outside = "yes"\n'))
+    with pytest.raises(SceneError, match="must be true or false"):
+        load_scene_file(path)
+
+
+def test_random_bytes_mesh_is_one_clear_line(tmp_path):
+    """A random-bytes OBJ was reported as a missing `charset_normalizer` module."""
+    rng = np.random.default_rng(5)
+    (tmp_path / "noise.obj").write_bytes(rng.integers(0, 256, 4000, dtype=np.uint8).tobytes())
+    with pytest.raises(SceneError) as info:
+        load_scene_file(write_scene(tmp_path, scene_text(mesh_file="noise.obj")))
+    _assert_one_line(info, "noise.obj", "is not a .obj file", "not UTF-8 text")
+    assert "charset_normalizer" not in str(info.value)

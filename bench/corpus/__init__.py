@@ -59,6 +59,8 @@ SCENES: dict[str, _Generator] = {g.name: g for g in (
                procedural.plan_hidden_bounce),
     _Generator("big_floor", "floor and back wall of 2 huge triangles each, beside dense small geometry lit by the floor's bounce",
                procedural.plan_big_floor),
+    _Generator("lit_wall_corner", "a lit wall meeting an unlit floor, corner in view: every sender of the bounce is on screen",
+               procedural.plan_lit_wall_corner),
     _Generator("sphere_inside", "inside a closed diffuse sphere: one-bounce radiance is exactly rho^2 I / (pi R^2) everywhere",
                procedural.plan_sphere_inside),
     _Generator("highpoly_10k", "noise-displaced terrain in a room, ~10k triangles (high-poly series)",

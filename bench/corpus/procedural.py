@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bench.corpus.geometry import GREEN, RED, WHITE, Heightfield, Icosphere, box, quad, wavy_height
-from bench.scene import Camera, PointLight, SceneError, SpotLight
+from bench.scene import Camera, DirectionalLight, PointLight, SceneError, SpotLight
 
 
 @dataclass
@@ -143,6 +143,26 @@ def plan_big_floor(intensity: float = 120.0) -> Plan:
     spot = SpotLight([0.3, 5.0, 2.0], [0.3, 0.0, 2.0], [intensity] * 3, cutoff_angle_deg=12.0)
     camera = Camera([1.0, 1.0, 3.8], [0.5, 0.5, 0.0], fov_y_deg=45.0)
     return Plan(parts, [spot], {"main": camera}, notes="floor and back wall are 2 triangles each")
+
+
+# ---------------------------------------------------------------------------- lit wall corner
+def plan_lit_wall_corner(cell: float = 0.25, irradiance: float = 3.0) -> Plan:
+    """A lit wall meeting an unlit floor, the corner in view: screen-space GI's own regime.
+
+    Floor y = 0 (x in [-1.5, 1.5], z in [-1, 1], light grey) and a terracotta wall z = -1
+    (x in [-1.5, 1.5], y in [0, 1.5]) under a directional light travelling along -z: the wall
+    faces it (irradiance `irradiance`), the floor is parallel to it and gets exactly none, so
+    every bit of light on the floor is the wall's bounce (and the wall gets none). The camera
+    looks down at the corner with the lit wall on screen: 99.5% of the unshadowed one-bounce
+    light in view comes from on-screen senders (128x96, `methods/ssdo/screen_bound.py`).
+    """
+    _require(0.05 <= cell <= 4.0, "lit_wall_corner", f"option cell must be in [0.05, 4] m, got {cell}")
+    _require(irradiance >= 0, "lit_wall_corner", f"option irradiance must be >= 0, got {irradiance}")
+    parts = [quad((-1.5, 0, -1.0), (0, 0, 2.0), (3.0, 0, 0), cell, (0.7, 0.7, 0.7)),      # floor, +y
+             quad((-1.5, 0, -1.0), (3.0, 0, 0), (0, 1.5, 0), cell, (0.8, 0.45, 0.25))]    # wall, +z
+    sun = DirectionalLight([0.0, 0.0, -1.0], [irradiance] * 3)
+    camera = Camera([0.5, 1.3, 1.7], [0.0, 0.3, -0.8], fov_y_deg=55.0)
+    return Plan(parts, [sun], {"main": camera}, notes="light parallel to the floor: the floor is lit only by the wall")
 
 
 # ---------------------------------------------------------------------------- sphere inside

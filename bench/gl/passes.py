@@ -4,6 +4,19 @@ names `gbuffer_shadow`, `direct_light` and `rsm`.
 
 Image convention: textures are GL's (row 0 at the bottom); `read_rgb` returns numpy arrays
 with row 0 at the top, like EXR files and Mitsuba.
+
+Depth: the GBuffer, shadow and RSM passes write gl_FragDepth linear in the distance (to the
+camera, to a point/spot light; depth along a directional light), scaled to [0, 1] by the pass's
+far distance. The projections keep near = 1e-5 far (nothing near the eye or light is clipped),
+where a 24-bit 1/z depth buffer's step is ~far/170 at the far end, coarser than the shadow
+tolerance; linear depth steps are far / 2^24 everywhere. Cost: no early depth test in these
+passes. The projection matrices (`View.proj`, `LightLayer.view_proj`) are unchanged.
+
+Emitter convention (every VPL method follows it, as Mitsuba's twosided diffuse with shading
+normals): the irradiance of an emitting point y takes its cosine against the shading normal at y
+(vertex normals interpolated there), y emits towards x the radiosity of the side of that shading
+normal x lies on, and the geometric term |cos| / d^2 uses y's geometric normal. The RSM flux is
+rho Phi_in |<n_s, l>| / |<n_g, l>| accordingly.
 """
 from __future__ import annotations
 
@@ -46,6 +59,10 @@ class LightLayer:
     light_index: int
     view_proj: np.ndarray
     info: np.ndarray  # see ShadowLayer.info in shadow.glsl
+    # (offset, scale): the depth test of the shadow and RSM passes runs on (metric - offset) * scale
+    # in [0, 1], linear in the light-space metric (distance to the light, or depth along a
+    # directional light), so its precision is range / 2^24 everywhere.
+    depth_map: tuple = (0.0, 1.0)
 
 
 def plan_light_layers(gpu: GpuScene, resolution: int) -> tuple[list[LightLayer], list[int], list[int]]:
@@ -63,7 +80,8 @@ def plan_light_layers(gpu: GpuScene, resolution: int) -> tuple[list[LightLayer],
             proj = perspective(90.0, 1.0, near, far)
             for axis, up in _CUBE_FACES:
                 vp = proj @ look_at(pos, pos + np.asarray(axis, float), up)
-                layers.append(LightLayer(i, vp, np.array([2.0 / resolution, 0.0, 1.0, 0.0])))
+                # every scene point is within `far` of the light: distance / far is in [0, 1]
+                layers.append(LightLayer(i, vp, np.array([2.0 / resolution, 0.0, 1.0, 0.0]), (0.0, 1.0 / far)))
         elif isinstance(light, SpotLight):
             pos = light.position - gpu.origin
             far = np.linalg.norm(pos - center) + R * 1.01
@@ -73,13 +91,15 @@ def plan_light_layers(gpu: GpuScene, resolution: int) -> tuple[list[LightLayer],
             up = (0.0, 1.0, 0.0) if abs(d[1]) < 0.99 else (1.0, 0.0, 0.0)
             vp = perspective(fov, 1.0, near, far) @ look_at(pos, pos + d, up)
             tan_half = np.tan(np.radians(fov) / 2)
-            layers.append(LightLayer(i, vp, np.array([2.0 * tan_half / resolution, 0.0, tan_half, 0.0])))
+            layers.append(LightLayer(i, vp, np.array([2.0 * tan_half / resolution, 0.0, tan_half, 0.0]),
+                                     (0.0, 1.0 / far)))
         elif isinstance(light, DirectionalLight):
             d = light.direction
             up = (0.0, 1.0, 0.0) if abs(d[1]) < 0.99 else (1.0, 0.0, 0.0)
             eye = center - d * 2.0 * R
             vp = orthographic(R * 1.01, R * 1.01, 0.0, 4.0 * R) @ look_at(eye, center, up)
-            layers.append(LightLayer(i, vp, np.array([2.0 * R * 1.01 / resolution, 1.0, 0.0, 0.0])))
+            layers.append(LightLayer(i, vp, np.array([2.0 * R * 1.01 / resolution, 1.0, 0.0, 0.0]),
+                                     (float(np.dot(eye, d)), 1.0 / (4.0 * R))))
         count.append(len(layers) - first[-1])
     return layers, first, count
 
@@ -107,7 +127,9 @@ class GBuffer:
         ctx.viewport = (0, 0, self.width, self.height)
         self.fbo.clear(0.0, 0.0, 0.0, 0.0, depth=1.0)
         ctx.enable_only(moderngl.DEPTH_TEST)
-        set_uniforms(self.program, u_view_proj=view.view_proj, u_camera_pos=tuple(view.eye_local))
+        # depth test on the distance to the camera / far (linear: see gbuffer.glsl)
+        set_uniforms(self.program, u_view_proj=view.view_proj, u_camera_pos=tuple(view.eye_local),
+                     u_depth_scale=1.0 / float(view.far))
         self.gpu.bind_scene_buffers()
         self.vao.render(moderngl.TRIANGLES)
 
@@ -169,7 +191,8 @@ class ShadowMaps:
         for k, layer in enumerate(self.layers):
             x, y = k % self.tiles_x, k // self.tiles_x
             ctx.viewport = (x * self.resolution, y * self.resolution, self.resolution, self.resolution)
-            set_uniforms(self.program, u_view_proj=layer.view_proj, u_light_index=layer.light_index)
+            set_uniforms(self.program, u_view_proj=layer.view_proj, u_light_index=layer.light_index,
+                         u_depth_map=tuple(float(v) for v in layer.depth_map))
             self.vao.render(moderngl.TRIANGLES)
 
     def bind(self, program: moderngl.Program, unit: int) -> int:
@@ -257,7 +280,8 @@ class ReflectiveShadowMap:
             x, y = k % self.tiles_x, k // self.tiles_x
             ctx.viewport = (x * self.resolution, y * self.resolution, self.resolution, self.resolution)
             set_uniforms(self.program, u_view_proj=layer.view_proj, u_light_index=layer.light_index,
-                         u_layer_info=tuple(float(v) for v in layer.info), u_rsm_resolution=self.resolution)
+                         u_layer_info=tuple(float(v) for v in layer.info), u_rsm_resolution=self.resolution,
+                         u_depth_map=tuple(float(v) for v in layer.depth_map))
             self.vao.render(moderngl.TRIANGLES)
 
     def bind(self, program: moderngl.Program, unit: int) -> int:

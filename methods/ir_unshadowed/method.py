@@ -2,7 +2,10 @@
 virtual point lights (VPLs) drawn from the reflective shadow map (Dachsbacher & Stamminger 2005).
 
 Each RSM texel i is a small patch of the first surface the light sees, holding its position
-y_i, its normal n_i (facing the light) and the flux it reflects Phi_i = rho_i Phi_in,i. Summed
+y_i, its normal n_i (facing the light) and the flux it reflects
+Phi_i = rho_i Phi_in,i |<n_s,i, l>| / |<n_g,i, l>| (Phi_in,i is the flux through the texel's
+patch; the cosine ratio takes the incident cosine at the shading normal n_s, as Mitsuba does,
+where the texel's footprint is measured with the geometric normal n_g). Summed
 over all texels, Lambertian patches give the unshadowed one-bounce radiance at x:
 
     L(x) = rho_x / pi * sum_i Phi_i / pi * <n_x, w>+ <n_i, -w>+ / max(eps, |y_i - x|)^2,

@@ -1,11 +1,29 @@
-"""`manylights`: the exact one-bounce unshadowed many-lights sum (eq. 4 of the FLC paper).
+"""`manylights`: the one-bounce unshadowed many-lights sum over centroid VPLs (eq. 4 of the FLC paper).
 
 Every triangle t is a VPL at y_t (its centroid, or a uniformly jittered point when
 `jitter_frames` > 1) carrying the shadowed direct radiosity B = rho_t E(y_t). Each pixel x sums
 
     L(x) = rho_x / pi * sum_t L_t(y_t -> x) <n_x, xy>+ |<n_t, yx>| A(t) / max(eps, |x - y_t|)^2
 
-with no indirect visibility. The VPL's emission model is a parameter:
+with no indirect visibility. It computes eq. 4's sum exactly, which is exact *for its VPL model*
+(one VPL at each triangle's centroid), not the continuous integral Mitsuba's unshadowed
+reference computes: the centroid rule's discretisation error is large on big triangles. On
+big_floor (floor and wall of 2 huge triangles, a spot lighting a disc no centroid lies in) the
+centroid sum is 0; issue #11 reported about half the reference on a user's flat-shaded two-room
+scene of a few large triangles (a similar scene built here gave 0.94). With `jitter_frames` J > 1 each frame puts every VPL at an independent uniform
+point of its triangle and the J frames are averaged inside one render: an unbiased estimate of
+the continuous integral, converging to it as J grows (noise ~ 1/sqrt(J), large where a small
+lit region lies on a big triangle). Compare both with the Mitsuba reference before trusting
+either on a scene of large triangles.
+
+Emitter convention (Mitsuba's `twosided` diffuse with shading normals): E(y_t) takes its
+cosine against the shading normal at y_t (the vertex normals interpolated there, normalised),
+the VPL emits towards x the B of the side of that shading normal x is on, and the geometric
+term's |<n_t, yx>| uses the face normal n_t; the receiver's <n_x, xy>+ uses its shading normal
+(the GBuffer's). The shadow-map offset follows the face normal. The `flc` lobe's cosine is the
+face normal's (FLC eq. 6 has no shading frame).
+
+The VPL's emission model is a parameter:
 
 | emission | L_t(w)                          | what estimates it without bias             |
 |----------|---------------------------------|--------------------------------------------|
@@ -14,14 +32,13 @@ with no indirect visibility. The VPL's emission model is a parameter:
 
 Both conserve energy: the cosine-weighted integral of L_t over the hemisphere is rho_t E.
 Surfaces are two-sided (as Mitsuba's `twosided` diffuse): a VPL emits on each side the light
-that side receives. With `jitter_frames` > 1 the VPL positions are jittered over their
-triangles and the frames averaged inside one render, which converges to the continuous
-integral over the surfaces. The cost is O(pixels x triangles): a reference baseline, slow.
+that side receives. The cost is O(pixels x triangles x J): a yardstick baseline, slow.
 
 | parameter      | default | range        | meaning                                          |
 |----------------|---------|--------------|--------------------------------------------------|
 | emission       | lambert | lambert, flc | VPL emission lobe                                |
-| jitter_frames  | 1       | 1 .. 4096    | VPL position samples per triangle (1: centroid)  |
+| jitter_frames  | 1       | 1 .. 4096    | VPL position samples per triangle (1: centroid;  |
+|                |         |              | > 1: converges to the continuous integral)       |
 | eps_rel        | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius |
 | max_triangles  | 2e6     | 1 .. 1e8     | skip larger scenes (the cost is pixels x T)      |
 """
@@ -38,26 +55,31 @@ from bench.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
 VPL_DEFINES = {"BINDING_VPL_TRIANGLES": 3, "BINDING_VPLS": 4}
+VPL_BYTES = 5 * 16  # std430 Vpl (vpl_triangles.glsl): five vec4
 
 
 def triangle_records(gpu) -> np.ndarray:
-    """std430 TriangleRecord per triangle: v0 (w = area), v1, v2 in re-centred float32."""
-    tri = gpu.positions[gpu.faces.astype(np.int64)]  # (T, 3, 3)
+    """std430 TriangleRecord per triangle: v0 (w = area), v1, v2 in re-centred float32, then the
+    three vertex shading normals."""
+    faces = gpu.faces.astype(np.int64)
+    tri = gpu.positions[faces]  # (T, 3, 3)
     area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
-    rec = np.zeros((len(tri), 3, 4), dtype=np.float32)
-    rec[:, :, :3] = tri
+    rec = np.zeros((len(tri), 6, 4), dtype=np.float32)
+    rec[:, :3, :3] = tri
     rec[:, 0, 3] = area
+    rec[:, 3:, :3] = gpu.normals[faces]
     return rec
 
 
 class ManyLights(MethodBase):
     name = "manylights"
-    summary = "Exact one-bounce unshadowed sum over every triangle as a VPL (FLC eq. 4)"
+    summary = "FLC eq. 4 sum over centroid VPLs (one per triangle), unshadowed; jitter_frames > 1 converges to the integral"
     stages = ("vpl_irradiance", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
     params = {
         "emission": Param("lambert", "VPL emission lobe", choices=("lambert", "flc")),
-        "jitter_frames": Param(1, "VPL position samples per triangle (1: centroid, no jitter)", 1, 4096,
+        "jitter_frames": Param(1, "VPL position samples per triangle (1: centroid, eq. 4's VPL model; "
+                               "> 1: uniform jitter, converges to the continuous integral)", 1, 4096,
                                quality=True, sweep=(1, 4, 16, 64)),
         "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
         "max_triangles": Param(2_000_000, "refuse scenes with more triangles", 1, 100_000_000),
@@ -71,7 +93,7 @@ class ManyLights(MethodBase):
         ctx = gpu.ctx
         defines = dict(VPL_DEFINES, EMISSION_FLC=params["emission"] == "flc")
         self.triangles = ctx.buffer(triangle_records(gpu).tobytes())
-        self.vpls = ctx.buffer(reserve=gpu.triangle_count * 64)
+        self.vpls = ctx.buffer(reserve=gpu.triangle_count * VPL_BYTES)
         self.irradiance = load_compute(ctx, SHADERS / "vpl_irradiance.glsl", defines)
         self.gather = load_program(ctx, SHADERS / "gather.glsl", defines)
         self.gather_vao = ctx.vertex_array(self.gather, [])

@@ -11,6 +11,12 @@ conservatively rasterised chart and the bilinear footprint of any point of it st
 own box, so charts never bleed into each other. `s` is the largest scale (bisection) at which
 a shelf packing of the boxes fits the lightmap.
 
+Lightmap size (texel density rule): given a target density D (texels per metre), the
+resolution is the smallest side R in [MIN_RESOLUTION, max_resolution] at which the charts pack
+at density D (bisection on R); `s` is then the largest density that fits R (>= D). When even
+max_resolution cannot hold D, R = max_resolution and `s` < D. So a scene gets lightmap texels
+in proportion to its surface area (about area * D^2 / fill, fill ~ 0.6) until the cap.
+
 All coordinates are the GPU's re-centred float coordinates; the chart map of triangle t is the
 affine map uv = (row0 . p + row0.w, row1 . p + row1.w) in texel units (texel (i, j) covers
 [i, i+1] x [j, j+1]).
@@ -22,6 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
+
+
+MIN_RESOLUTION = 16
 
 
 class LightmapTooSmall(ValueError):
@@ -104,8 +113,12 @@ def shelf_pack(widths: np.ndarray, heights: np.ndarray, size: int):
     return pos
 
 
-def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int, tolerance: float, split=()) -> Unwrap:
-    """Charts, packing and per-triangle texel maps for a `resolution`^2 lightmap (`split`: see find_charts)."""
+def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int, tolerance: float, split=(),
+           density: float | None = None) -> Unwrap:
+    """Charts, packing and per-triangle texel maps (`split`: see find_charts). With `density`
+    (texels per metre), `resolution` is the largest lightmap side allowed and the side used is
+    the smallest that packs the charts at that density (module docstring); without it the
+    lightmap is `resolution`^2."""
     vertices = np.asarray(vertices, dtype=np.float64)
     faces = np.asarray(faces, dtype=np.int64)
     chart, chart_axis, normal, chart_area = find_charts(vertices, faces, tolerance, split)
@@ -125,14 +138,18 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int, tolerance: 
     def boxes(scale):
         return (np.ceil(scale * extent_u).astype(np.int64) + 2, np.ceil(scale * extent_v).astype(np.int64) + 2)
 
+    if density is not None:
+        resolution = fit_resolution(boxes(float(density)), int(resolution))
     largest = max(float(extent_u.max()), float(extent_v.max()), 1e-300)
     hi = (resolution - 2) / largest
     lo = hi * 1e-6
     if shelf_pack(*boxes(lo), resolution) is None:
         raise LightmapTooSmall(f"{count} charts do not fit a {resolution}^2 lightmap even at the smallest "
-                               f"texel density: raise lightmap_resolution")
+                               f"texel density: raise max_lightmap_resolution")
     if shelf_pack(*boxes(hi), resolution) is not None:
         lo = hi
+    elif density is not None and density < hi and shelf_pack(*boxes(float(density)), resolution) is not None:
+        lo = float(density)   # the target fits: the result is never below it
     for _ in range(40):  # bisection on log scale: packing is monotone up to shelf effects
         if hi / lo < 1.0 + 1e-4:
             break
@@ -154,6 +171,22 @@ def unwrap(vertices: np.ndarray, faces: np.ndarray, resolution: int, tolerance: 
     return Unwrap(resolution=int(resolution), scale=float(scale), chart_of_triangle=chart, chart_axis=chart_axis,
                   chart_area_m2=chart_area, chart_box=np.column_stack([pos, bw, bh]), rows=rows,
                   face_normal=normal, axis_cosine=axis_cos)
+
+
+def fit_resolution(box_sizes, max_resolution: int) -> int:
+    """Smallest lightmap side in [MIN_RESOLUTION, max_resolution] whose shelf packing holds boxes
+    of sizes `box_sizes` (widths, heights); max_resolution if none does."""
+    widths, heights = box_sizes
+    lo, hi = min(MIN_RESOLUTION, max_resolution), int(max_resolution)
+    if shelf_pack(widths, heights, hi) is None:
+        return hi
+    while lo < hi:   # packing success is monotone in the side (the shelves only get longer)
+        mid = (lo + hi) // 2
+        if shelf_pack(widths, heights, mid) is None:
+            lo = mid + 1
+        else:
+            hi = mid
+    return hi
 
 
 def chart_image(unwrap_: Unwrap) -> np.ndarray:

@@ -25,13 +25,19 @@ Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
    to that VAL's texel with additive blending; a compute pass divides by the count. A final
    scatter writes the mapping C (VPL -> VAL) and, with MAX blending, the bounding rectangle of
    the VPLs projected on the VAL's plane; the VAL's size is lambda = sqrt(its area).
-3. `val_shadow_maps`: one paraboloid map per VAL (256^2 in the paper), oriented around its
-   normal, all in one instanced draw with tessellation (edges split to <= 0.15 rad seen from the
-   VAL, since the projection bends straight edges); then, for `visibility=cssm`, the Fourier
-   basis and basis-z images (`fourier_terms` terms) and their MIP maps (paper Sec. 6).
+3. `val_shadow_maps`: one paraboloid map per VAL (a tile of one R32F atlas), oriented around
+   its normal, all in one instanced draw with tessellation: the projection bends straight
+   edges into arcs, so each edge is split into pieces whose chord strays at most
+   TESS_SAGITTA_TEXELS = 0.5 texel from the arc (the projected edge length in map units sets
+   the level, per VAL and per frame; patches entirely behind the VAL's plane or inside its
+   ignore radius are dropped before tessellation). Each texel stores the exact distance along
+   its own direction to the plane of the triangle drawn there (an interpolated distance is
+   off by percents across a tessellated piece). Then, for `visibility=cssm`: the map's far
+   distance far_j (largest drawn distance, the depth normalisation), the Fourier basis and
+   basis-z atlases (`fourier_terms` terms, same tiling; paper Sec. 6) and their MIP maps.
 4. `val_visibility`: V_j(x) for every pixel and VAL (compute): parabolic CSSM (blocker
-   search, penumbra estimate, MIP-filtered convolution of the basis) or, with
-   `visibility=hard`, one binary shadow-map test at the VAL centre.
+   search, penumbra estimate, MIP-filtered convolution of the basis, sharpened shadow test)
+   or, with `visibility=hard`, one binary shadow-map test at the VAL centre.
 5. `gather`: the sum above with interleaved sampling in `interleave` x `interleave` blocks
    (the paper: 8 x 8 blocks, 1024 VPLs -> 16 VPLs per pixel).
 6. `blur`: geometry-aware blur over the block (alpha = 10% of the scene extent, beta = 0.8,
@@ -54,8 +60,34 @@ Corrections and choices relative to the paper's text (recorded here as the house
   radian at angle theta from the VAL normal, used here (alpha / pi is 27% too large at the
   centre and 36% too small at the rim).
 - CSM shadow test: f(d, z) = 1/2 + 2 sum_k sin(c_k (z - d)) / c_k, c_k = pi (2k - 1) (lit for
-  z > d), with Annen et al.'s scaled reconstruction V = clamp(2 f, 0, 1) so that an unoccluded
-  receiver (z = d, f = 1/2) is fully lit. The blocker search uses the unscaled f.
+  z > d). An unoccluded receiver reads its own surface (z = d, f = 1/2), so the filtered
+  F = [w * f] must be rescaled; Annen et al.'s V = clamp(2 F, 0, 1) leaks: the 4-term step
+  ramps over 7.6% of the depth range (with the scene-extent normalisation, a blocker 0.5 m in
+  front of a receiver in `rooms` let 40% through) and its ringing lets up to 11% through an
+  umbra, which gave 1.21x the visible one-bounce reference on `rooms` (+16% over per-VPL hard
+  shadows). The default test is the scaled and biased reconstruction
+  V = clamp(1 + s (F - 1/2), 0, 1) with s = `csm_sharpening` = 3 (s = 2 is Annen's): still 1
+  at F = 1/2, 0 from F = 1/6, which removes the ringing and narrows the ramp to 4.5% of the
+  range; the price is a darker penumbra (V = 1 - 1.5 b where a fraction b of the kernel is
+  blocked by a distant occluder, instead of 1 - b). The blocker search uses the unscaled f.
+- Depth normalisation: z = distance / far_j with far_j the largest distance drawn in VAL j's
+  map (a reduction pass), not the scene's extent: the step's width is a fixed fraction of
+  the range, so a tight range sharpens it in metres (`rooms`: 1.11 -> 1.08 of the reference).
+- Map resolution: the paper's 256^2 maps serve 800 x 800 images (3 map texels per pixel for
+  M = 30) and take 8% of its frame, the per-pixel gather 69%. At the benchmark's 128 x 96 the
+  per-pixel stages are 50x cheaper while the maps are not, so the default is 128^2 (still 40
+  map texels per pixel); 256 is a sweep value. The map stage is still the frame's largest on
+  the software rasteriser (about 35-45% on cornell_spot and rooms, over 60% on the scenes of
+  5-8 k triangles), mostly the draw: M x triangles primitives at a fixed set-up cost each
+  (the paper: "the scene needs to be rendered once for each VAL").
+- The basis is kept in 2-D atlases tiled as the depth atlas instead of texture arrays: MIP
+  maps of one atlas cost a third of those of a 30-layer array on the software rasteriser, and
+  with power-of-two tiles no MIP texel mixes two maps; lookups are clamped half a texel of
+  the coarser level inside the tile. `shadow_resolution` must be a power of two.
+- The basis-z images (z sin, z cos, z) are made at half resolution, each texel the mean of
+  2 x 2 map texels, i.e. exactly level 1 of their MIP chain: the blocker search reads them
+  with a kernel of at least 2 texels (the VAL's extent seen from the receiver, usually far
+  wider), and the basis images it is divided by are read at the same level.
 - The VAL "irradiance" texture holds the cluster's total flux (diagnostics); lighting uses
   the N VPLs themselves, as the paper does.
 - The blur averages the unweighted gather (without receiver albedo), the albedo is applied
@@ -70,8 +102,9 @@ Corrections and choices relative to the paper's text (recorded here as the house
 | weight_position    | 0.7     | 0 .. 10          | w_x of the clustering distance (per scene radius)          |
 | weight_angle       | 0.3     | 0 .. 10          | w_a of the clustering distance (per radian)                |
 | visibility         | cssm    | cssm, hard       | soft CSSM per VAL, or one hard shadow test per VAL         |
-| shadow_resolution  | 256     | 16 .. 1024       | paraboloid map resolution (quality; sweep 64, 128, 256)    |
+| shadow_resolution  | 128     | 16 .. 1024       | paraboloid map resolution, a power of two (quality; sweep 64, 128, 256; paper: 256) |
 | fourier_terms      | 4       | 4, 8             | CSM Fourier terms (paper: 4)                               |
+| csm_sharpening     | 3.0     | 2 .. 16          | slope s of the CSM test clamp(1 + s (F - 1/2)) (2: Annen's) |
 | near_ignore        | 0.5     | 0 .. 4           | ignore geometry within this x lambda of a VAL centre       |
 | normal_offset      | 0.5     | 0 .. 16          | receiver offset along its normal, in map texel footprints  |
 | interleave         | 8       | 1 .. 16          | interleaved-sampling block size B (1: no interleave/blur)  |
@@ -79,10 +112,11 @@ Corrections and choices relative to the paper's text (recorded here as the house
 | blur_normal_dot    | 0.8     | -1 .. 1          | blur beta: min normal dot product                          |
 | clamp_distance_rel | 1e-4    | 1e-7 .. 1        | eps of max(eps, d), relative to the scene radius           |
 
-Memory: the basis arrays hold cluster_count x shadow_resolution^2 x (4 x fourier_terms + 1) half
-floats (+1/3 for MIP maps), the visibility array width x height x cluster_count floats; a
-combination over 1 GiB, or an atlas over GL_MAX_TEXTURE_SIZE, is refused in prepare() with an
-error naming the parameters.
+Memory: the basis atlases hold (tiles >= cluster_count) x shadow_resolution^2 x
+(2 x fourier_terms + (2 x fourier_terms + 1) / 4) half floats (+1/3 for MIP maps), the visibility array width x height x
+cluster_count floats; a combination over 1 GiB, an atlas over GL_MAX_TEXTURE_SIZE, or a
+shadow_resolution that is not a power of two is refused in prepare() with an error naming the
+parameters.
 """
 from __future__ import annotations
 
@@ -102,13 +136,13 @@ from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler
 SHADERS = Path(__file__).parent / "shaders"
 VAL_RECORD_BYTES = 3 * 16            # struct Val in val_records.glsl: three vec4
 VAL_DEFINES = dict(VPL_DEFINES, BINDING_VALS=7, BINDING_VPL_CLUSTER=8, BINDING_VAL_COUNT=9)
-TESS_MAX_ANGLE = 0.15                # rad: longest edge piece seen from a VAL (arc sagitta < 1/4 texel at 256^2)
+TESS_SAGITTA_TEXELS = 0.5           # largest chord-to-arc distance of a tessellated edge piece in the map
 TESS_MAX_LEVEL = 64                  # GL guarantees tessellation levels up to 64
 LIFT_SCALE = 1e-4                    # VAL map centre above its surface / scene radius (as ir_shadowed)
 NEAR_SCALE = 1e-5                    # smallest ignore radius / scene radius (ir_shadowed's near plane)
 BLOCKER_MIN = 0.02                   # filtered blocker fraction below which a receiver is unoccluded
 MAX_BASIS_BYTES = 1 << 30
-GL_RGBA16F, GL_R16F, GL_R32F = 0x881A, 0x822D, 0x822E
+GL_R32F = 0x822E
 
 
 class HaltonVplSampler(RsmVplSampler):
@@ -222,8 +256,10 @@ class ValClustering:
 
 
 class ParaboloidShadowMaps:
-    """One paraboloid distance map per VAL (R32F atlas) and, for CSSM, its MIP-mapped Fourier
-    basis arrays."""
+    """One paraboloid distance map per VAL (tiles of an R32F atlas) and, for CSSM, the Fourier
+    basis atlases (same tiling) with their MIP maps."""
+
+    BASIS_NAMES = ("u_basis_sin", "u_basis_cos", "u_basis_zsin", "u_basis_zcos")
 
     def __init__(self, gpu, clustering: ValClustering, resolution: int, cssm: bool, term_groups: int,
                  near_ignore: float):
@@ -238,25 +274,41 @@ class ParaboloidShadowMaps:
         if max(size) > max_size:
             raise ParamError(f"method 'val_clustered': cluster_count={m} x shadow_resolution={resolution} needs a "
                              f"{size[0]}x{size[1]} map atlas, over GL_MAX_TEXTURE_SIZE={max_size}")
-        self.defines = dict(VAL_DEFINES, TERM_GROUPS=self.term_groups, TESS_MAX_ANGLE=TESS_MAX_ANGLE,
-                            TESS_MAX_LEVEL=TESS_MAX_LEVEL)
+        # a chord c of a circle of radius >= 1 (uv units) strays at most c^2 / 8 from its arc
+        max_arc_uv = math.sqrt(8.0 * TESS_SAGITTA_TEXELS * 2.0 / self.resolution)
+        self.max_lod = int(math.log2(self.resolution))  # level at which a tile is one texel
+        self.defines = dict(VAL_DEFINES, TERM_GROUPS=self.term_groups, TESS_MAX_ARC_UV=max_arc_uv,
+                            TESS_MAX_LEVEL=TESS_MAX_LEVEL, MAX_LOD=self.max_lod)
         self.atlas = ctx.texture(size, 1, dtype="f4")
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.fbo = ctx.framebuffer([self.atlas])
         self.program = load_program(ctx, SHADERS / "paraboloid_depth.glsl", self.defines)
         self.vao = gpu.vertex_array(self.program)
-        self.basis = []
-        self.basis_pass = None
+        # RGBA16F atlases: sin_g, cos_g per group g at the map resolution; zsin_g, zcos_g per
+        # group and the R16F z at half resolution (level 1 of their MIP chain, see cssm_basis.glsl).
+        # (The paper's 8-bit sin/cos would save a third of the basis pass here, but their MIP
+        # levels, each rounded to 8 bits, shift F by ~0.01 for the wide kernels of large VALs.)
+        self.basis_full, self.basis_half = [], []
+        self.basis_fbos, self.basis_programs, self.basis_vaos = [], [], []
+        self.far_pass = None
         if self.cssm:
-            layers = m * self.term_groups
-            res = self.resolution
-            for _ in range(4):
-                self.basis.append(ctx.texture_array((res, res, layers), 4, dtype="f2"))
-            self.basis.append(ctx.texture_array((res, res, m), 1, dtype="f2"))
-            for t in self.basis:
+            half = (size[0] // 2, size[1] // 2)
+            for _ in range(self.term_groups):
+                self.basis_full += [ctx.texture(size, 4, dtype="f2") for _ in range(2)]
+                self.basis_half += [ctx.texture(half, 4, dtype="f2") for _ in range(2)]
+            self.basis_half.append(ctx.texture(half, 1, dtype="f2"))
+            for t in self.textures():
                 t.filter = (moderngl.LINEAR_MIPMAP_LINEAR, moderngl.LINEAR)
                 t.repeat_x = t.repeat_y = False
-            self.basis_pass = load_compute(ctx, SHADERS / "cssm_basis.glsl", self.defines)
+            for half_res, targets in ((0, self.basis_full), (1, self.basis_half)):
+                prog = load_program(ctx, SHADERS / "cssm_basis.glsl", dict(self.defines, HALF_RES=half_res))
+                self.basis_programs.append(prog)
+                self.basis_vaos.append(ctx.vertex_array(prog, []))
+                self.basis_fbos.append(ctx.framebuffer(targets))
+            self.far_pass = load_compute(ctx, SHADERS / "map_far.glsl", self.defines)
+
+    def textures(self) -> list:
+        return self.basis_full + self.basis_half
 
     def render(self) -> None:
         ctx = self.ctx
@@ -271,6 +323,7 @@ class ParaboloidShadowMaps:
         self.clustering.bind()
         set_uniforms(self.program, **self.clustering.common)
         set_uniforms(self.program, u_tiles_x=self.tiles_x, u_tiles_y=self.tiles_y, u_near_ignore=self.near_ignore,
+                     u_resolution=self.resolution,
                      u_near_min=NEAR_SCALE * self.gpu.radius)
         ctx.patch_vertices = 3
         self.vao.render(moderngl.PATCHES, instances=self.clustering.cluster_count)
@@ -281,32 +334,50 @@ class ParaboloidShadowMaps:
         if self.cssm:
             ctx.memory_barrier()
             self.atlas.use(0)
-            set_uniforms(self.basis_pass, **self.clustering.common)
-            set_uniforms(self.basis_pass, u_depth_atlas=0, u_tiles_x=self.tiles_x, u_resolution=self.resolution)
-            for unit, tex in enumerate(self.basis):
-                tex.bind_to_image(unit, read=False, write=True, level=0, format=GL_RGBA16F if unit < 4 else GL_R16F)
-            groups = (self.resolution + 7) // 8
-            self.basis_pass.run(group_x=groups, group_y=groups, group_z=self.clustering.cluster_count)
+            set_uniforms(self.far_pass, **self.clustering.common)
+            set_uniforms(self.far_pass, u_depth_atlas=0, u_tiles_x=self.tiles_x, u_resolution=self.resolution)
+            self.far_pass.run(group_x=self.clustering.cluster_count)
             ctx.memory_barrier()
-            for tex in self.basis:
-                tex.build_mipmaps()
+            self.atlas.use(0)
+            for prog, vao, fbo in zip(self.basis_programs, self.basis_vaos, self.basis_fbos):
+                fbo.use()
+                ctx.viewport = (0, 0, fbo.width, fbo.height)
+                set_uniforms(prog, **self.clustering.common)
+                set_uniforms(prog, u_depth_atlas=0, u_tiles_x=self.tiles_x, u_tiles_y=self.tiles_y)
+                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self.tiles_x * self.tiles_y)
+            for tex in self.basis_full:
+                tex.build_mipmaps(0, self.max_lod)
+            for tex in self.basis_half:
+                tex.build_mipmaps(0, self.max_lod - 1)
 
     def bind(self, program, unit: int) -> int:
         self.atlas.use(unit)
-        set_uniforms(program, u_depth_atlas=unit, u_tiles_x=self.tiles_x, u_resolution=self.resolution)
+        set_uniforms(program, u_depth_atlas=unit, u_tiles_x=self.tiles_x, u_resolution=self.resolution,
+                     u_atlas_size=tuple(float(v) for v in self.atlas.size))
         unit += 1
-        for name, tex in zip(("u_basis_sin", "u_basis_cos", "u_basis_zsin", "u_basis_zcos", "u_basis_z"), self.basis):
-            tex.use(unit)
-            set_uniforms(program, **{name: unit})
+        if self.cssm:
+            # group g's sin, cos in basis_full[2g:2g+2]; its zsin, zcos in basis_half[2g:2g+2]
+            for k, name in enumerate(self.BASIS_NAMES):
+                textures = (self.basis_full if k < 2 else self.basis_half)[k % 2:2 * self.term_groups:2]
+                units = []
+                for tex in textures:
+                    tex.use(unit)
+                    units.append(unit)
+                    unit += 1
+                member = program.get(name, None)
+                if member is not None:
+                    member.value = units if len(units) > 1 else units[0]
+            self.basis_half[-1].use(unit)
+            set_uniforms(program, u_basis_z=unit)
             unit += 1
         return unit
 
     def release(self) -> None:
         park(self.ctx)
-        for obj in (self.fbo, self.atlas, self.program, *self.basis):
-            obj.release()
-        if self.basis_pass is not None:
-            self.basis_pass.release()
+        for obj in (*self.basis_fbos, self.fbo, self.atlas, self.program, *self.textures(), *self.basis_vaos,
+                    *self.basis_programs, self.far_pass):
+            if obj is not None:
+                obj.release()
 
 
 class ClusteredVirtualAreaLights(MethodBase):
@@ -325,9 +396,11 @@ class ClusteredVirtualAreaLights(MethodBase):
         "weight_angle": Param(0.3, "w_a: clustering weight of the normal angle (per radian)", 0.0, 10.0),
         "visibility": Param("cssm", "per-VAL visibility: soft (parabolic CSSM) or one hard shadow test",
                             choices=("cssm", "hard")),
-        "shadow_resolution": Param(256, "paraboloid shadow map resolution per VAL (texels)", 16, 1024,
+        "shadow_resolution": Param(128, "paraboloid shadow map resolution per VAL (texels, a power of two)", 16, 1024,
                                    quality=True, sweep=(64, 128, 256)),
         "fourier_terms": Param(4, "Fourier terms of the convolution shadow maps", choices=(4, 8)),
+        "csm_sharpening": Param(3.0, "slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) "
+                                     "(2: Annen et al.'s plain scaling)", 2.0, 16.0),
         "near_ignore": Param(0.5, "ignore geometry closer to a VAL centre than this times the VAL size", 0.0, 4.0),
         "normal_offset": Param(0.5, "receiver offset along its geometric normal for the VAL shadow test, "
                                     "in map texel footprints at the receiver", 0.0, 16.0),
@@ -348,7 +421,11 @@ class ClusteredVirtualAreaLights(MethodBase):
         cssm = params["visibility"] == "cssm"
         res = params["shadow_resolution"]
         groups = params["fourier_terms"] // 4
-        basis_bytes = m * res * res * (16 * groups + 1) * 2 * 4 // 3 if cssm else 0
+        if res & (res - 1):
+            raise ParamError(f"method 'val_clustered': shadow_resolution={res} is not a power of two (the MIP "
+                             f"levels of the map atlases must not mix the maps of neighbouring VALs)")
+        tiles = math.ceil(math.sqrt(m)) * math.ceil(m / math.ceil(math.sqrt(m)))
+        basis_bytes = tiles * res * res * (8 * groups + (8 * groups + 1) // 4) * 2 * 4 // 3 if cssm else 0
         if basis_bytes > MAX_BASIS_BYTES:
             raise ParamError(f"method 'val_clustered': cluster_count={m} x shadow_resolution={res} x "
                              f"fourier_terms={params['fourier_terms']} needs {basis_bytes / 2**30:.1f} GiB of "
@@ -398,7 +475,7 @@ class ClusteredVirtualAreaLights(MethodBase):
             unit = passes.gbuffer.bind(prog)
             self.maps.bind(prog, unit)
             set_uniforms(prog, u_normal_offset=float(p["normal_offset"]), u_size=(self.width, self.height),
-                         u_blocker_min=BLOCKER_MIN)
+                         u_blocker_min=BLOCKER_MIN, u_csm_sharpening=float(p["csm_sharpening"]))
             self.visibility.bind_to_image(5, read=False, write=True, level=0, format=GL_R32F)
             prog.run(group_x=(self.width + 7) // 8, group_y=(self.height + 7) // 8)
             ctx.memory_barrier()

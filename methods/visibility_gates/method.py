@@ -3,11 +3,13 @@ empty space (Visibility Gates; paper: /work/shared/papers/visibility_gates.txt, 
 based on virtual point lights and topological information about the scene ...").
 
 Precomputation (`prepare`, untimed, CPU; see topology.py; cached per scene and knobs):
-voxelization of the enclosed empty space, its curvilinear skeleton with maximal-ball radii,
-simplified (spur pruning), segmentation of the skeleton (topology, curvature and coverage
-nodes), greedy *visibility clusters* (quasi-convex parts of the empty space: rooms, corridors, door openings) and one
-*visibility gate* per segmented edge between two clusters: a disk at the middle of the edge,
-orthogonal to it, of radius min(maxball(n1), maxball(n2)) x `gate_radius_scale`.
+voxelization of the empty space light travels in (enclosed rooms; for open scenes the space
+around the geometry, closed by the enlarged bounding box), its curvilinear skeleton, simplified
+(spur pruning), maximal-ball radii measured to the triangles, segmentation of the skeleton
+(topology, curvature and coverage nodes), greedy *visibility clusters* (quasi-convex parts of
+the empty space: rooms, corridors), clusters joined by a wide gate merged, and one *visibility
+gate* per segmented edge between two clusters: the opening of the empty space where the
+skeleton line is narrowest, as an ellipse (x `gate_radius_scale`).
 
 Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
 
@@ -22,11 +24,13 @@ Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
    cluster C whose cone through one of C's gates meets the cluster's bounding sphere (brute
    force over VPLs, as in the paper; indirect dispatch over the clusters found).
 4. `gather` (IL): each pixel sums its cluster's VPLs with the Lambertian VPL term of
-   ir_unshadowed; a VPL from another visibility cluster C counts only if the pixel is in its
-   cone through one of C's gates: the segment VPL -> pixel crosses that gate's disk.
+   ir_unshadowed; a VPL from another visibility cluster C counts only if the segment VPL ->
+   pixel, leaving C through the first of C's gates it crosses, enters the pixel's cluster
+   (`gate_hops` > 1: or walks on, cluster to cluster through the first gate crossed each time,
+   and enters it within `gate_hops` gates).
 
 Visibility is therefore V = 1 inside a visibility cluster (quasi-convexity: no shadow test),
-V = [segment crosses a gate of the VPL's cluster] otherwise. With the same VPLs the result is
+V = [the segment reaches the pixel's cluster through gates] otherwise. With the same VPLs the result is
 <= `ir_unshadowed` at every pixel, equal where the scene is one cluster (a sphere seen from
 inside: rho^2 I / (pi R^2)). The light assignment culls exactly: it never drops a VPL the final
 segment test would accept (conservative cone/sphere test).
@@ -49,50 +53,89 @@ Paper formula corrections and readings (checked against the invariant each must 
   gate. Before segmentation every terminal branch all of whose nodes its junction sees in a
   straight line through the empty space is removed (topology.prune_spurs; one pass over the
   original branches, so a room behind a door, which has junctions of its own, is never pruned).
+- Maximal balls (IV.A, "the radius of the maximal ball contained in the empty space"): the
+  exact distance from the node to the nearest triangle (a k-d tree of surface samples gives
+  candidates, trimesh's point-triangle distance the value; the closing box's walls count for
+  open scenes), not the distance transform of the voxels, which measured to the thickened
+  voxel surface and made the radii, hence the clusters, depend on voxel_resolution.
+- Voxelization (IV.A, "a binary voxelization"): a voxel is occupied when its centre is within
+  sqrt(3)/2 voxel of a triangle (exact distance). The thinning treats the empty space as
+  26-connected; with the earlier sampled voxelization (a voxel holding a point of a triangle)
+  a tilted wall had 26-connected holes, the skeleton of cornell_spot passed through its
+  blocks' walls and the box split into 19 clusters joined by 0.02 m gates at resolution 64.
+- Open scenes (the paper's own Sponza has an open roof; before, they were skipped): the empty
+  space is the enclosed components plus the component around the geometry that holds a camera
+  eye or a positional light ("the empty space, where light travels", III), closed by the
+  scene's bounding box enlarged by two voxels. A scene whose cameras and lights are all
+  outside that box and which encloses nothing is skipped (SkipRow).
+- Merging (not in the paper; `merge_gate_fraction`): after the greedy clustering, two clusters
+  joined by a gate whose radius (the paper's min of the two maximal balls) is at least
+  `merge_gate_fraction` x the smaller cluster's largest maximal ball are merged, widest first,
+  re-evaluated after each merge. Such a gate is no narrowing of the space, only a break in the
+  voxel skeleton's radii (a corner of a room, the space beside a block; a door's own cluster
+  beside its room), and light crossing it is barely occluded; a door between rooms (gate a
+  third of the rooms' balls) stays a gate.
+- Gate shape and place (the paper's own improvement, VI.B: "use polygon instead of disks to
+  better match the shape of separation between clusters"; its disk, at the middle of the
+  segmented edge, sat half a room before a door with the door's half-width as radius and let
+  a third of the door's light through: rooms 0.59x ir_shadowed): the gate lies at the
+  narrowest node of the skeleton line the segmented edge replaces; of the planes through it
+  normal to the line (tangents over 1..8 nodes) or to the edge, the one with the smallest
+  bounded opening is taken; the opening (the plane's region farther than sqrt(3)/2 voxel from
+  every triangle, rasterised) gives an ellipse with its centroid and second moments, grown by
+  the band the threshold took off (exact for rectangles: a 0.9 x 2.1 m door has semi-axes
+  2.1/sqrt(3) and 0.9/sqrt(3), its area 5 % larger). Where no plane has a bounded opening
+  within 4 maximal-ball radii (open space), the disk of that node's maximal ball.
+- Which view samples a cone lights (`gate_hops`): the paper tests the cones "against view
+  samples contained in other clusters" (V) while its Fig. 11 lights "the neighbor visibility
+  cluster". Lighting any cluster behind a gate (the previous reading, needed while doors were
+  clusters of their own) leaked through walls once gates had the size of their openings:
+  rooms 'far', two offset doors from the light, 1.45x ir_shadowed. Default: the first gate of
+  the VPL's cluster the segment crosses must lead into the pixel's cluster (Fig. 11); with
+  the merging, a door is part of a room, so light passes between neighbouring rooms.
+  `gate_hops` = k lets the segment walk through up to k gates (rooms 'far' 1.26x with k >= 2:
+  light through two chained doors is a thin set of rays that the ellipses' mismatch with the
+  door rectangles enlarges several times).
 - alpha: "add all neighbors of m ... for which radius of maximal balls does not differ more than
   alpha % of the maximal radius contained in the cluster" / "how similar two maximal balls must
   be": the two balls compared are the popped node m's and its neighbour k's, the tolerance is
   alpha % of the cluster's largest radius: |r_k - r_m| <= alpha/100 r_max(C) (alpha = 20 in the
   paper). Comparing r_k with r_max(C) itself (the earlier reading) cut every line whose radius
   shrinks gradually into many clusters.
-- Which view samples a cone lights: the paper tests the cones "against view samples contained
-  in other clusters" (V) and "against all cones created from the combination of the VPL and a
-  visibility gate" (V.C); the gates combined with a VPL of cluster C are those separating C from
-  its neighbours. So a view sample of any cluster D != C is lit when it lies in such a cone
-  (beyond the gate: the segment crosses the disk), not only when D is the neighbour across that
-  gate (the earlier reading, from Fig. 11's caption, which shows one example; with it a door
-  that forms its own cluster blocked all light between two rooms). A cone may continue through
-  a wall behind the neighbour; the light assignment and gather accept that approximation, as
-  the paper does (measured on `rooms`: the room two offset doors away stays darker than
-  ir_shadowed).
 - Voxel -> cluster: as the paper, geodesically nearest skeleton node, then the nearest extremum
   of its line, then that segmented node's cluster (not maximal-ball containment).
 - Light lists: the paper stores (VPL, gate) pairs per geometry cluster; here a VPL bit mask,
-  and the fragment tests every gate of the VPL's cluster, which accepts exactly the pairs
-  whose segment crosses one of them and never counts a VPL twice when its segment crosses
-  two gates.
+  and the fragment walks the gates of the VPL's cluster (its first step is one of the cones
+  the light assignment tested, so the culling stays conservative), never counting a VPL twice.
 
-Known behaviour (the paper's "results slightly darker than the reference ... since gates are
-only disks, we still miss a lot of VPLs"): narrow spaces beside objects (between a block and a
-wall) become clusters of their own, reached from the main one only through disks of the
-narrow space's maximal-ball radius. With the same VPLs at 128x96 and default settings, mean
-indirect / ir_shadowed's: cornell_spot 0.64, rooms 0.59, hidden_bounce 0.60 (cornell_spot at
-voxel_resolution 32, one room cluster: 1.02). The cluster count, hence the darkening, depends
-on voxel_resolution through the voxel skeleton's shape.
+Known behaviour (README.md has the measured tables): at the defaults, 128x96, mean indirect /
+the visible Mitsuba reference: cornell_spot 1.02, hidden_bounce 1.05, rooms 1.02 (main) and
+1.29 (far, where ir_shadowed with the same VPLs is 1.28), big_floor 1.04, sponza 1.69 (ir_shadowed
+1.52); before the corrections above: cornell_spot 0.65, hidden_bounce 0.63, rooms 0.61,
+big_floor and sponza skipped. A box with blocks, and hidden_bounce's room, is one cluster at
+voxel_resolution 32, 64 and 128 (the blocks' closed interiors are clusters of their own, which
+no gate reaches); there the method equals ir_unshadowed. Rooms 'far' is 0.78..1.01x
+ir_shadowed over seeds: its light from room 1 crosses two offset doors, which one gate hop does
+not follow. At voxel_resolution 32 the walls (sqrt(3)/2 voxel on each side) close rooms' second
+door (0.9 m, 2.4 voxels). Precomputation on sponza (66k triangles): about 10 s at resolution
+64, 30 s at 128 (shared 2-core machine), mostly exact distances (voxels, gate openings).
 
-| parameter          | default | range        | meaning                                                    |
-|--------------------|---------|--------------|------------------------------------------------------------|
-| vpl_count          | 256     | 1 .. 65536   | VPLs per frame (quality; sweep 16, 64, 256, 1024)          |
-| voxel_resolution   | 64      | 16 .. 256    | voxels along the scene's longest side (quality; 32 64 128) |
-| alpha_percent      | 20      | 0 .. 1000    | radius similarity of clustered skeleton nodes (%)          |
-| gate_radius_scale  | 1.0     | 0 .. 8       | gate disk radius multiplier (0: no light through gates)    |
-| use_gates          | true    | bool         | false: light stays inside visibility clusters (paper VI.B) |
-| depth_slices       | 16      | 1 .. 256     | clustered-shading depth slices (exponential in depth)      |
-| clamp_distance_rel | 1e-4    | 1e-7 .. 1    | eps of max(eps, d), relative to the scene radius           |
+| parameter           | default | range      | meaning                                                           |
+|---------------------|---------|------------|-------------------------------------------------------------------|
+| vpl_count           | 256     | 1 .. 65536 | VPLs per frame (quality; sweep 16, 64, 256, 1024)                 |
+| voxel_resolution    | 64      | 16 .. 256  | voxels along the scene's longest side (quality; 32 64 128)        |
+| alpha_percent       | 20      | 0 .. 1000  | radius similarity of clustered skeleton nodes (%)                 |
+| merge_gate_fraction | 0.75    | 0 .. 2     | merge clusters whose gate is >= this x the smaller's largest ball |
+| gate_radius_scale   | 1.0     | 0 .. 8     | gate ellipse size multiplier (0: no light through gates)          |
+| gate_hops           | 1       | 1 .. 16    | gates light may cross VPL -> pixel (1: into a neighbour, Fig. 11) |
+| use_gates           | true    | bool       | false: light stays inside visibility clusters (paper VI.B)        |
+| depth_slices        | 16      | 1 .. 256   | clustered-shading depth slices (exponential in depth)             |
+| clamp_distance_rel  | 1e-4    | 1e-7 .. 1  | eps of max(eps, d), relative to the scene radius                  |
 
-Scenes with no enclosed empty space at the chosen resolution (open scenes) are skipped
-(SkipRow); so are topologies of 2^20 visibility clusters or more. `extra` of the frame output
-reports the precomputation time (s), cluster and gate counts.
+Scenes with no empty space at the chosen resolution (nothing enclosed, and no camera or
+positional light in the space around the geometry) are skipped (SkipRow); so are topologies of
+2^20 visibility clusters or more. `extra` of the frame output reports the precomputation time
+(s, and per step), cluster counts (greedy, after merging), gate count and `closed_by_box`.
 """
 from __future__ import annotations
 
@@ -125,13 +168,21 @@ _TOPOLOGY_CACHE: OrderedDict = OrderedDict()
 _CACHE_SIZE = 4
 
 
-def scene_topology(scene, resolution: int, alpha_percent: float) -> tuple[Topology, bool]:
+def topology_seeds(scene) -> np.ndarray:
+    """Points of the space light travels in: every camera eye and positional light."""
+    points = [c.eye for c in scene.cameras.values()]
+    points += [l.position for l in scene.lights if hasattr(l, "position")]
+    return np.array(points, float).reshape(-1, 3)
+
+
+def scene_topology(scene, resolution: int, alpha_percent: float, merge_fraction: float) -> tuple[Topology, bool]:
     """The scene's topology (built, or from the small in-process cache) and whether it was cached."""
-    key = (scene.content_hash(), int(resolution), float(alpha_percent))
+    key = (scene.content_hash(), int(resolution), float(alpha_percent), float(merge_fraction))
     if key in _TOPOLOGY_CACHE:
         _TOPOLOGY_CACHE.move_to_end(key)
         return _TOPOLOGY_CACHE[key], True
-    topo = build_topology(scene.vertices, scene.faces, resolution, alpha_percent, scene.name)
+    topo = build_topology(scene.vertices, scene.faces, resolution, alpha_percent, merge_fraction,
+                          topology_seeds(scene), scene.name)
     _TOPOLOGY_CACHE[key] = topo
     while len(_TOPOLOGY_CACHE) > _CACHE_SIZE:
         _TOPOLOGY_CACHE.popitem(last=False)
@@ -168,8 +219,12 @@ class VisibilityGates(MethodBase):
                                   16, 256, quality=True, sweep=(32, 64, 128)),
         "alpha_percent": Param(20.0, "skeleton nodes join a visibility cluster when their maximal-ball radius "
                                      "is within alpha % of the cluster's largest", 0.0, 1000.0),
-        "gate_radius_scale": Param(1.0, "gate disk radius multiplier (1: min of the two maximal balls; "
-                                        "0: no light crosses gates)", 0.0, 8.0),
+        "merge_gate_fraction": Param(0.75, "clusters joined by a gate at least this fraction as wide as the smaller "
+                                          "cluster's largest maximal ball are merged (above 1: never)", 0.0, 2.0),
+        "gate_radius_scale": Param(1.0, "gate size multiplier (1: the ellipse of the opening, or the maximal-ball "
+                                        "disk in open space; 0: no light crosses gates)", 0.0, 8.0),
+        "gate_hops": Param(1, "gates a VPL's light may cross on its way to a pixel (1: into a neighbouring "
+                              "cluster only, paper Fig. 11)", 1, 16),
         "use_gates": Param(True, "false: indirect light stays inside visibility clusters"),
         "depth_slices": Param(16, "clustered-shading depth slices, exponential in view depth", 1, 256),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
@@ -179,7 +234,8 @@ class VisibilityGates(MethodBase):
         self.params = params
         t0 = time.perf_counter()
         try:
-            topo, cached = scene_topology(scene, params["voxel_resolution"], params["alpha_percent"])
+            topo, cached = scene_topology(scene, params["voxel_resolution"], params["alpha_percent"],
+                                          params["merge_gate_fraction"])
         except TopologyError as exc:
             raise SkipRow(str(exc)) from None
         if topo.cluster_count >= 1 << CLUSTER_BITS:
@@ -188,6 +244,7 @@ class VisibilityGates(MethodBase):
         self.topology = topo
         self.info = {"precompute_s": time.perf_counter() - t0, "precompute_cached": cached,
                      "visibility_clusters": topo.cluster_count, "gates": int(len(topo.gate_radius)),
+                     "greedy_clusters": topo.greedy_cluster_count, "closed_by_box": topo.closed_by_box,
                      "skeleton_nodes": int(len(topo.node_position)),
                      **{f"precompute_{k}_s": v for k, v in topo.timings_s.items()}}
         ctx = self.ctx = gpu.ctx
@@ -205,17 +262,20 @@ class VisibilityGates(MethodBase):
         self.grid_tex = ctx.texture3d(topo.dims, 1, grid.tobytes(), dtype="i4")
         self.grid_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.grid_origin = tuple(float(v) for v in topo.origin - gpu.origin)
-        gates = np.zeros((max(len(topo.gate_radius), 1), 2, 4), np.float32)
-        gates[:len(topo.gate_radius), 0, :3] = topo.gate_centre - gpu.origin
-        gates[:len(topo.gate_radius), 0, 3] = topo.gate_radius
-        gates[:len(topo.gate_radius), 1, :3] = topo.gate_normal
+        g = len(topo.gate_radius)
+        gates = np.zeros((max(g, 1), 3, 4), np.float32)  # Gate of topology.glsl
+        gates[:g, 0, :3] = topo.gate_centre - gpu.origin
+        gates[:g, 0, 3] = topo.gate_semi_axes[:, 0]
+        gates[:g, 1, :3] = topo.gate_normal
+        gates[:g, 1, 3] = topo.gate_semi_axes[:, 1]
+        gates[:g, 2, :3] = topo.gate_major
         ranges, table = adjacency_arrays(topo)
         self.gates = ctx.buffer(gates.tobytes())
         self.adj_ranges = ctx.buffer(ranges.tobytes())
         self.adj_entries = ctx.buffer(table.tobytes())
         max_degree = int((ranges[:, 1] - ranges[:, 0]).max(initial=0))
-        # llvmpipe's loop limit counts the gate loop of every VPL too (bench.gl.context.LOOP_CHUNK)
-        self.chunk_words = max(1, LOOP_CHUNK // (32 * (1 + max_degree)))
+        # llvmpipe's loop limit counts the gate walk of every VPL too (bench.gl.context.LOOP_CHUNK)
+        self.chunk_words = max(1, LOOP_CHUNK // (32 * (1 + params["gate_hops"] * (1 + max_degree))))
 
         tiles = ((self.width + TILE - 1) // TILE, (self.height + TILE - 1) // TILE)
         self.tiles = tiles
@@ -226,7 +286,7 @@ class VisibilityGates(MethodBase):
         self.cluster_count = ctx.buffer(reserve=16)
         self.light_masks = ctx.buffer(reserve=capacity * self.words * 4)
 
-        defines = dict(GATE_DEFINES, DEPTH_SLICES=params["depth_slices"])
+        defines = dict(GATE_DEFINES, DEPTH_SLICES=params["depth_slices"], GATE_HOPS=params["gate_hops"])
         self.vpl_cluster_pass = load_compute(ctx, SHADERS / "vpl_clusters.glsl", defines)
         self.cluster_pass = load_compute(ctx, SHADERS / "geometry_clusters.glsl", defines)
         self.dispatch_pass = load_compute(ctx, SHADERS / "dispatch_args.glsl", defines)

@@ -1,15 +1,18 @@
-"""Visibility Gates precomputation (paper section IV), on the CPU with numpy / scipy / scikit-image:
+"""Visibility Gates precomputation (paper section IV), on the CPU with numpy / scipy / scikit-image / trimesh:
 
-1. `voxelize`: binary surface voxelization of the scene (trimesh subdivides every triangle to
-   edges below a quarter voxel; each vertex marks its voxel), then the *enclosed* empty space:
-   the 6-connected components of the empty voxels that do not touch the (padded) grid border.
-2. `skeletonize`: curvilinear skeleton of the enclosed empty space (scikit-image's 3-D thinning,
+1. `voxelize`: a voxel is occupied when its centre is within sqrt(3)/2 voxel of a triangle
+   (exact distances, `SurfaceIndex`), so the 26-connected empty space never passes through a
+   surface. The empty space is every component of empty voxels not reaching the grid's border,
+   plus, for open scenes, the component around the geometry holding a camera eye or positional
+   light, closed by the bounding box enlarged by PAD voxels.
+2. `skeleton_graph`: curvilinear skeleton of the empty space (scikit-image's 3-D thinning,
    Lee et al. 1994: topology preserving and centred, like the paper's cubical-complex thinning
-   [20]); the radius of each node's maximal ball comes from the Euclidean distance transform.
-   The skeleton voxels become a graph (26-adjacency, minus the long side of every voxel
+   [20]). The skeleton voxels become a graph (26-adjacency, minus the long side of every voxel
    triangle, so a voxel staircase is a line and not a chain of spurious junctions), then
    `prune_spurs` removes the terminal branches their junction sees in a straight line (the
-   spurs an end-point-preserving thinning grows towards convex corners and edges).
+   spurs an end-point-preserving thinning grows towards convex corners and edges). The radius
+   of each node's maximal ball is its exact distance to the nearest triangle (and to the
+   closing box's walls).
 3. `segment`: topology nodes (degree != 2), then curvature nodes (curv = dist(n, L1 Lk) /
    maxball(n) > 1, the most curved node first, recursively), then coverage nodes (a node in no
    maximal ball of its line's extrema, recursively); unclassified nodes are dropped and each
@@ -17,12 +20,15 @@
 4. `cluster`: the paper's greedy visibility clusters (largest ball first, neighbours that are
    not curvature nodes and whose radius differs from the popped node's by at most alpha % of the
    cluster's largest, plus every node reachable inside the popped node's maximal ball).
-5. `gates`: one disk per segmented edge joining two clusters: centre at the middle of the edge,
-   normal along it, radius min(maxball(n1), maxball(n2)).
-6. `cluster_grid`: each enclosed empty voxel gets the cluster of its geodesically nearest
-   skeleton node (multi-source shortest paths through the empty space, scipy.sparse.csgraph);
-   every other voxel (surfaces, outside) the cluster of its nearest enclosed empty voxel, so a
-   surface point looked up one voxel off its surface along its normal finds its room.
+5. `merge_wide_gates`: clusters joined by a paper gate (radius min(maxball(n1), maxball(n2)))
+   at least `merge_fraction` x the smaller cluster's largest ball are merged. `gates_between`:
+   one gate per segmented edge joining two clusters, the ellipse of the opening of the empty
+   space at the narrowest node of the skeleton line the edge replaces (`opening_ellipse`), or
+   that node's maximal-ball disk where the opening is not bounded nearby.
+6. `cluster_grid`: each empty voxel gets the cluster of its geodesically nearest skeleton node
+   (breadth-first flooding through the empty space, scikit-image's watershed); every other
+   voxel (surfaces, outside) the cluster of its nearest empty voxel, so a surface point looked
+   up one voxel off its surface along its normal finds its room.
 """
 from __future__ import annotations
 
@@ -32,10 +38,14 @@ from dataclasses import dataclass, field
 import numpy as np
 import trimesh
 from scipy import ndimage, sparse
-from scipy.sparse.csgraph import connected_components, dijkstra
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 from skimage.morphology import skeletonize
+from skimage.segmentation import watershed
 
 KIND_UNCLASSIFIED, KIND_TOPOLOGY, KIND_CURVATURE, KIND_COVERAGE = 0, 1, 2, 3
+OCCUPIED_DISTANCE = 0.5 * np.sqrt(3.0)  # voxels: centre-to-triangle distance of an occupied voxel
+PAD = 2  # voxels between the scene's bounding box and the grid border (the closing box)
 
 # 13 half-neighbourhood offsets of the 26-neighbourhood (each undirected voxel pair once).
 _HALF_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for k in (-1, 0, 1)
@@ -43,7 +53,7 @@ _HALF_OFFSETS = np.array([(i, j, k) for i in (-1, 0, 1) for j in (-1, 0, 1) for 
 
 
 class TopologyError(ValueError):
-    """The scene has no enclosed empty space the method can build its topology in."""
+    """The scene has no empty space the method can build its topology in."""
 
 
 @dataclass
@@ -59,12 +69,20 @@ class Topology:
     node_cluster: np.ndarray    # (S,) visibility cluster of each node
     segmented_edges: np.ndarray  # (E, 2) skeleton indices of the segmented skeleton's edges
     cluster_count: int
+    greedy_cluster_count: int   # clusters of the paper's greedy step, before merge_wide_gates
     gate_centre: np.ndarray     # (G, 3) world
-    gate_normal: np.ndarray     # (G, 3) unit, from gate_clusters[:, 0]'s side to [:, 1]'s
-    gate_radius: np.ndarray     # (G,)
+    gate_normal: np.ndarray     # (G, 3) unit normal of the gate's plane (along the skeleton; sign free)
+    gate_major: np.ndarray      # (G, 3) unit major axis of the gate's ellipse, in its plane
+    gate_semi_axes: np.ndarray  # (G, 2) semi-axes (major, minor) of the ellipse (m)
     gate_clusters: np.ndarray   # (G, 2) the two clusters each gate separates
-    enclosed_voxels: int
+    empty_voxels: int
+    closed_by_box: bool         # open scene: the empty space is closed by the enlarged bounding box
     timings_s: dict = field(default_factory=dict)
+
+    @property
+    def gate_radius(self) -> np.ndarray:
+        """(G,) radius of the ball holding each gate (its major semi-axis)."""
+        return self.gate_semi_axes[:, 0]
 
     def cluster_of(self, points: np.ndarray) -> np.ndarray:
         """Visibility cluster of world points (nearest voxel, clamped to the grid)."""
@@ -74,41 +92,129 @@ class Topology:
 
 
 # ----------------------------------------------------------------------------- 1. voxelization
-def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int):
-    """(occupied bool grid, enclosed-empty bool grid, origin, pitch). Grid padded by 2 voxels."""
+def surface_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float):
+    """Points on every triangle: a barycentric lattice whose sub-triangles have edges <= spacing,
+    so every point of a triangle is within `spacing` of one of its samples. (points (P, 3), the
+    triangle of each point (P,))."""
+    tri = vertices[faces]
+    longest = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+    steps = np.maximum(np.ceil(longest / spacing), 1).astype(np.int64)
+    points, owner = [], []
+    for k in np.unique(steps):
+        i, j = np.indices((k + 1, k + 1)).reshape(2, -1)
+        keep = i + j <= k
+        u, v = i[keep] / k, j[keep] / k
+        sel = np.flatnonzero(steps == k)
+        for part in np.array_split(sel, max(1, len(sel) * len(u) // 2_000_000)):
+            t = tri[part]
+            p = t[:, None, 0] + u[None, :, None] * (t[:, None, 1] - t[:, None, 0]) + \
+                v[None, :, None] * (t[:, None, 2] - t[:, None, 0])
+            points.append(p.reshape(-1, 3))
+            owner.append(np.repeat(part, len(u)))
+    return np.concatenate(points), np.concatenate(owner)
+
+
+class SurfaceIndex:
+    """Exact point-to-scene distances. Candidates come from a k-d tree of surface samples at most
+    `spacing` from every point of their triangle: with d0 the distance to the nearest sample, the
+    nearest triangle has a sample within d0 + spacing, so testing the triangles of every sample in
+    that ball (trimesh's exact point-triangle distance) gives the true minimum."""
+
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray, spacing: float):
+        self.vertices, self.faces, self.spacing = vertices, faces, float(spacing)
+        self.points, self.owner = surface_samples(vertices, faces, spacing)
+        self.tree = cKDTree(self.points, balanced_tree=False, compact_nodes=False)
+
+    def distance(self, query: np.ndarray) -> np.ndarray:
+        """Exact distance of each query point to the nearest triangle."""
+        query = np.asarray(query, float).reshape(-1, 3)
+        d0, _ = self.tree.query(query)
+        best = d0.copy()
+        hits = self.tree.query_ball_point(query, d0 + self.spacing)
+        counts = np.fromiter((len(h) for h in hits), np.int64, len(hits))
+        q = np.repeat(np.arange(len(query)), counts)
+        f = self.owner[np.concatenate(hits).astype(np.int64)]
+        pairs = np.unique(q * len(self.faces) + f)
+        q, f = pairs // len(self.faces), pairs % len(self.faces)
+        for part in np.array_split(np.arange(len(q)), max(1, len(q) // 1_000_000)):
+            closest = trimesh.triangles.closest_point(self.vertices[self.faces[f[part]]], query[q[part]])
+            np.minimum.at(best, q[part], np.linalg.norm(closest - query[q[part]], axis=1))
+        return best
+
+    def near(self, query: np.ndarray, threshold: float) -> np.ndarray:
+        """Is each query point within `threshold` of a triangle (exact)? The nearest sample
+        decides unless it lies in (threshold, threshold + spacing]; only those get `distance`."""
+        query = np.asarray(query, float).reshape(-1, 3)
+        d0, _ = self.tree.query(query, distance_upper_bound=threshold + self.spacing)
+        out = d0 <= threshold
+        unsure = np.flatnonzero(~out & np.isfinite(d0))
+        if len(unsure):
+            out[unsure] = self.distance(query[unsure]) <= threshold
+        return out
+
+
+def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int, seeds=()):
+    """Binary voxelization and the empty space light travels in.
+
+    A voxel is occupied when its centre is within sqrt(3)/2 voxel of a triangle (exact distance,
+    OCCUPIED_DISTANCE): the segment between the centres of two 26-adjacent voxels that crosses a
+    triangle has one end within sqrt(3)/2 voxel of the crossing, so the 26-connected empty space
+    (the connectivity of scikit-image's thinning) never passes through a surface, however it is
+    tilted. Sampling the triangles instead, as before, let the skeleton leak through tilted
+    walls into the closed blocks of a Cornell box. The grid spans the scene's bounding box
+    enlarged by PAD voxels on every side; its outermost voxel layer is a wall (the closing box).
+    The empty space is every 26-connected component of empty voxels that does not reach that
+    layer (enclosed rooms) plus, for open scenes, the component around the geometry when a seed
+    (camera eye, positional light) lies in it: an open roof or an open floor is then closed by
+    the enlarged bounding box. Returns (occupied, empty, origin, pitch, closed_by_box, the
+    SurfaceIndex used: samples half a voxel apart)."""
     lo, hi = vertices.min(0), vertices.max(0)
-    extent = hi - lo
-    pitch = float(extent.max()) / int(resolution)
-    origin = lo - 2.0 * pitch
-    dims = np.ceil((hi - origin) / pitch).astype(np.int64) + 2
-    sub_v, _ = trimesh.remesh.subdivide_to_size(vertices, faces, max_edge=0.25 * pitch, max_iter=64)
-    idx = np.clip(np.floor((sub_v - origin) / pitch).astype(np.int64), 0, dims - 1)
+    pitch = float((hi - lo).max()) / int(resolution)
+    origin = lo - PAD * pitch
+    dims = np.ceil((hi - origin) / pitch).astype(np.int64) + PAD
+    surface = SurfaceIndex(vertices, faces, 0.5 * pitch)
+    idx = np.clip(np.floor((surface.points - origin) / pitch).astype(np.int64), 0, dims - 1)
+    near = np.zeros(tuple(dims), dtype=bool)
+    near[idx[:, 0], idx[:, 1], idx[:, 2]] = True
+    # a centre within OCCUPIED_DISTANCE + 0.5 (< 1.5) voxels of a sample is in a voxel next to the sample's
+    band = np.argwhere(ndimage.binary_dilation(near, structure=np.ones((3, 3, 3), bool)))
     occupied = np.zeros(tuple(dims), dtype=bool)
-    occupied[idx[:, 0], idx[:, 1], idx[:, 2]] = True
-    labels, _ = ndimage.label(~occupied)  # 6-connectivity: a 26-connected surface layer blocks it
+    occupied[tuple(band[surface.near(origin + (band + 0.5) * pitch, OCCUPIED_DISTANCE * pitch)].T)] = True
+    labels, _ = ndimage.label(~occupied, structure=np.ones((3, 3, 3), bool))
     border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
                                        labels[:, :, [0, -1]].ravel()]))
-    enclosed = (labels > 0) & ~np.isin(labels, border)
-    return occupied, enclosed, origin, pitch
+    border = border[border > 0]
+    empty = (labels > 0) & ~np.isin(labels, border)
+    seeds = np.asarray(seeds, float).reshape(-1, 3)
+    seed_idx = np.floor((seeds - origin) / pitch).astype(np.int64)
+    inside = np.all((seed_idx >= 1) & (seed_idx < dims - 1), axis=1)
+    outside = np.intersect1d(border, labels[tuple(seed_idx[inside].T)])
+    closed_by_box = len(outside) > 0
+    if closed_by_box:
+        empty |= np.isin(labels, outside)
+        for axis in range(3):  # the closing box: the grid's outermost layer
+            empty[(slice(None),) * axis + (0,)] = False
+            empty[(slice(None),) * axis + (-1,)] = False
+    return occupied, empty, origin, pitch, closed_by_box, surface
 
 
 # ----------------------------------------------------------------------------- 2. skeleton graph
-def skeleton_graph(enclosed: np.ndarray):
+def skeleton_graph(empty: np.ndarray):
     """Skeleton voxel coordinates (S, 3) and their adjacency (CSR, symmetric, 0/1)."""
-    skel = skeletonize(enclosed) > 0
-    labels, count = ndimage.label(enclosed)
+    skel = skeletonize(empty) > 0
+    labels, count = ndimage.label(empty, structure=np.ones((3, 3, 3), bool))
     has = np.zeros(count + 1, bool)
     has[np.unique(labels[skel])] = True
     for comp in np.flatnonzero(~has[1:]) + 1:  # a component thinned to nothing keeps its deepest voxel
         dist = ndimage.distance_transform_edt(labels == comp)
         skel[np.unravel_index(int(np.argmax(dist)), dist.shape)] = True
     coords = np.argwhere(skel)
-    index = -np.ones(enclosed.shape, np.int64)
+    index = -np.ones(empty.shape, np.int64)
     index[tuple(coords.T)] = np.arange(len(coords))
     rows, cols, lens = [], [], []
     for off in _HALF_OFFSETS:
         nb = coords + off
-        ok = np.all((nb >= 0) & (nb < np.asarray(enclosed.shape)), axis=1)
+        ok = np.all((nb >= 0) & (nb < np.asarray(empty.shape)), axis=1)
         j = -np.ones(len(coords), np.int64)
         j[ok] = index[tuple(nb[ok].T)]
         m = j >= 0
@@ -239,7 +345,8 @@ def split_lines(lines: list, pos: np.ndarray, radius: np.ndarray, kind: np.ndarr
 
 
 def segment(graph, pos: np.ndarray, radius: np.ndarray):
-    """Node kinds, association of every node to a segmented node, segmented edges."""
+    """Node kinds, association of every node to a segmented node, segmented edges and, per
+    segmented edge (a, b) with a < b, the skeleton line it replaces (nodes from a to b)."""
     n = graph.shape[0]
     nbrs = _neighbours(graph)
     degree = np.diff(graph.indptr)
@@ -251,17 +358,17 @@ def segment(graph, pos: np.ndarray, radius: np.ndarray):
             kind[members[0]] = KIND_TOPOLOGY
     lines = split_lines(trace_lines(nbrs, kind), pos, radius, kind)
     association = np.arange(n)
-    edges = set()
+    edges = {}
     for line in lines:
         a, b = line[0], line[-1]
         if a != b:
-            edges.add((min(a, b), max(a, b)))
+            edges.setdefault((min(a, b), max(a, b)), list(line) if a < b else list(line[::-1]))
         steps = np.linalg.norm(np.diff(pos[line], axis=0), axis=1)
         arc = np.concatenate([[0.0], np.cumsum(steps)])
         for i, node in enumerate(line[1:-1], start=1):
             association[node] = a if arc[i] <= arc[-1] - arc[i] else b
     seg_edges = np.array(sorted(edges), dtype=np.int64).reshape(-1, 2)
-    return kind, association, seg_edges
+    return kind, association, seg_edges, edges
 
 
 # ----------------------------------------------------------------------------- 4. visibility clusters
@@ -302,35 +409,139 @@ def cluster(seg_nodes: np.ndarray, seg_edges: np.ndarray, pos, radius, kind, alp
     return label, count
 
 
+# ----------------------------------------------------------------------------- 5. gates, merging
+GATE_RASTER = 16     # half-width of the gate's cross-section raster, in raster cells
+GATE_REACH = 4.0     # the raster's half-width, in maximal-ball radii of the narrowest node
+TANGENT_STEPS = (1, 2, 3, 5, 8)  # skeleton nodes either side of the narrowest node: candidate normals
+
+
+def opening_ellipse(surface: "SurfaceIndex", centre: np.ndarray, normal: np.ndarray, reach: float, wall: float):
+    """The opening of the empty space in the plane (centre, normal): the region of the plane
+    around `centre` farther than `wall` from every triangle (exact distance; the voxels' own
+    OCCUPIED_DISTANCE, so a zero-thickness wall still bounds the plane through a skeleton node,
+    which lies beside it), rasterised at reach / GATE_RASTER (at most `wall`, so the
+    4-connected region never crosses a surface). Returns (centroid, unit major axis, semi-axes
+    a >= b) of the ellipse with the region's centroid and second moments (a uniform ellipse of
+    semi-axis a has variance a^2 / 4 along it), each semi-axis grown by 2 wall / sqrt(3) for the
+    band the threshold takes off the opening's border (exact for a rectangular opening:
+    a = width / sqrt(3) either way); None when the region reaches the raster's border (no bounded
+    opening there)."""
+    u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    v = np.cross(normal, u)
+    h = min(reach / GATE_RASTER, wall)
+    n = int(np.ceil(reach / h))
+    t = (np.arange(2 * n + 1) - n) * h
+    su, sv = np.meshgrid(t, t, indexing="ij")
+    points = centre + su[..., None] * u + sv[..., None] * v
+    free = ~surface.near(points.reshape(-1, 3), wall).reshape(su.shape)
+    labels, _ = ndimage.label(free)  # 4-connectivity
+    own = labels[n, n]
+    if own == 0:
+        return None
+    region = labels == own
+    if region[[0, -1]].any() or region[:, [0, -1]].any():
+        return None
+    uv = np.stack([su[region], sv[region]], axis=1)
+    mean = uv.mean(axis=0)
+    lam, vec = np.linalg.eigh(np.cov(uv.T, bias=True) + np.eye(2) * h * h / 12.0)
+    semi = 2.0 * np.sqrt(lam[::-1]) + 2.0 * wall / np.sqrt(3.0)
+    major = vec[0, 1] * u + vec[1, 1] * v
+    return centre + mean[0] * u + mean[1] * v, major / np.linalg.norm(major), semi
+
+
+def gates_between(seg_edges: np.ndarray, edge_lines: dict, seg_cluster: dict, pos: np.ndarray,
+                  radius: np.ndarray, surface: "SurfaceIndex | None" = None, wall: float = 0.0):
+    """One gate per segmented edge joining two clusters: (centres, unit normals, unit major axes,
+    semi-axes (G, 2), pairs). Without `surface`, the paper's disk (middle of the edge,
+    orthogonal to it, radius min(maxball(n1), maxball(n2))). With it, the ellipse of the opening
+    at the narrowest node of the skeleton line the edge replaces: of the planes through that
+    node normal to the line there (tangents over TANGENT_STEPS nodes either side) or to the
+    edge, the one whose bounded opening is smallest; or the disk of the node's maximal ball,
+    normal to the line, when no such plane has a bounded opening nearby."""
+    centres, normals, majors, semi, pairs = [], [], [], [], []
+    for a, b in seg_edges:
+        ca, cb = seg_cluster[int(a)], seg_cluster[int(b)]
+        if ca == cb:
+            continue
+        pairs.append((ca, cb))
+        if surface is None:
+            d = pos[b] - pos[a]
+            centre, normal, r = 0.5 * (pos[a] + pos[b]), d / np.linalg.norm(d), min(radius[a], radius[b])
+            ellipse = None
+        else:
+            line = edge_lines[(int(a), int(b))]
+            k = int(np.argmin(radius[line]))
+            centre, r = pos[line[k]], radius[line[k]]
+            candidates = [pos[line[min(k + j, len(line) - 1)]] - pos[line[max(k - j, 0)]] for j in TANGENT_STEPS]
+            normals_tried = []
+            for d in candidates + [pos[b] - pos[a]]:  # distinct directions only (within ~3 degrees)
+                if np.linalg.norm(d) > 0 and all(abs(d @ e) < 0.9986 * np.linalg.norm(d) for e in normals_tried):
+                    normals_tried.append(d / np.linalg.norm(d))
+            normal, ellipse = normals_tried[0], None
+            for cand in normals_tried:
+                found = opening_ellipse(surface, centre, cand, GATE_REACH * r, wall)
+                if found is not None and (ellipse is None or np.prod(found[2]) < np.prod(ellipse[2])):
+                    normal, ellipse = cand, found
+        if ellipse is None:
+            major = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
+            ellipse = (centre, major / np.linalg.norm(major), np.array([r, r]))
+        centres.append(ellipse[0])
+        normals.append(normal)
+        majors.append(ellipse[1])
+        semi.append(ellipse[2])
+    return (np.array(centres, float).reshape(-1, 3), np.array(normals, float).reshape(-1, 3),
+            np.array(majors, float).reshape(-1, 3), np.array(semi, float).reshape(-1, 2),
+            np.array(pairs, np.int64).reshape(-1, 2))
+
+
+def merge_wide_gates(count: int, cluster_radius: np.ndarray, gate_radius: np.ndarray, gate_pairs: np.ndarray,
+                     fraction: float) -> tuple[np.ndarray, int]:
+    """Merge two clusters joined by a gate at least `fraction` as wide as the smaller cluster's
+    largest maximal ball: such a gate is no narrowing of the empty space (a door is narrow beside
+    a room, the gap beside a block is not beside itself), only a break in the voxel skeleton's
+    radii, and light crossing it is barely occluded. Widest gate (relative) first, one at a
+    time, the ratios re-evaluated with the merged clusters' largest balls. Returns (new label of
+    each old cluster, in order of first appearance; new count)."""
+    parent = np.arange(count)
+    r_max = np.asarray(cluster_radius, float).copy()
+
+    def root(c):
+        while parent[c] != c:
+            c = parent[c]
+        return c
+
+    while True:
+        best, best_ratio = None, -1.0
+        for g, (a, b) in enumerate(gate_pairs):
+            ra, rb = root(int(a)), root(int(b))
+            if ra == rb:
+                continue
+            ratio = gate_radius[g] / min(r_max[ra], r_max[rb])
+            if ratio >= fraction and ratio > best_ratio:
+                best, best_ratio = (ra, rb), ratio
+        if best is None:
+            break
+        keep, gone = min(best), max(best)
+        parent[gone] = keep
+        r_max[keep] = max(r_max[keep], r_max[gone])
+    roots = np.array([root(c) for c in range(count)])
+    _, first, inverse = np.unique(roots, return_index=True, return_inverse=True)
+    order = np.argsort(np.argsort(first))  # relabel in order of first appearance
+    return order[inverse].astype(np.int64), len(first)
+
+
 # ----------------------------------------------------------------------------- 6. voxel -> cluster
-def cluster_grid(enclosed: np.ndarray, skel_coords: np.ndarray, node_cluster: np.ndarray) -> np.ndarray:
-    shape = enclosed.shape
-    flat = np.flatnonzero(enclosed.ravel())
-    index = -np.ones(enclosed.size, np.int64)
-    index[flat] = np.arange(len(flat))
-    coords = np.array(np.unravel_index(flat, shape)).T
-    rows, cols = [], []
-    for axis in range(3):
-        off = np.zeros(3, np.int64)
-        off[axis] = 1
-        nb = coords + off
-        ok = nb[:, axis] < shape[axis]
-        j = -np.ones(len(coords), np.int64)
-        j[ok] = index[np.ravel_multi_index(tuple(nb[ok].T), shape)]
-        m = j >= 0
-        rows.append(np.flatnonzero(m)); cols.append(j[m])
-    r, c = np.concatenate(rows), np.concatenate(cols)
-    g = sparse.coo_matrix((np.ones(len(r)), (r, c)), shape=(len(flat), len(flat))).tocsr()
-    sources = index[np.ravel_multi_index(tuple(skel_coords.T), shape)]
-    _, _, nearest = dijkstra(g, directed=False, indices=sources, unweighted=True, min_only=True,
-                             return_predecessors=True)
-    source_node = -np.ones(len(flat), np.int64)
-    source_node[sources] = np.arange(len(sources))
-    grid = -np.ones(enclosed.size, np.int32)
-    reached = nearest >= 0
-    grid[flat[reached]] = node_cluster[source_node[nearest[reached]]]
-    grid = grid.reshape(shape)
-    # unreached enclosed voxels (none when every component holds a skeleton node) and every other
+def cluster_grid(empty: np.ndarray, skel_coords: np.ndarray, node_cluster: np.ndarray) -> np.ndarray:
+    """Visibility cluster of every voxel. Empty voxels: the cluster of the geodesically nearest
+    skeleton node (6-connected steps through the empty space): scikit-image's watershed of a
+    flat image from the skeleton nodes floods breadth first, in order of arrival, which is that
+    (ties between two nodes aside). Every other voxel: the cluster of its nearest empty voxel."""
+    markers = np.zeros(empty.shape, np.int32)
+    markers[tuple(skel_coords.T)] = np.asarray(node_cluster) + 1
+    flooded = watershed(np.zeros(empty.shape, np.uint8), markers, connectivity=1, mask=empty)
+    grid = flooded.astype(np.int32) - 1
+    # unreached empty voxels (none when every component holds a skeleton node) and every other
     # voxel: the cluster of the nearest labelled voxel
     _, nearest_idx = ndimage.distance_transform_edt(grid < 0, return_indices=True)
     return grid[tuple(nearest_idx)].astype(np.int32)
@@ -338,44 +549,48 @@ def cluster_grid(enclosed: np.ndarray, skel_coords: np.ndarray, node_cluster: np
 
 # ----------------------------------------------------------------------------- all steps
 def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alpha_percent: float,
-                   scene_name: str = "scene") -> Topology:
+                   merge_fraction: float, seeds=(), scene_name: str = "scene") -> Topology:
+    vertices, faces = np.asarray(vertices, float), np.asarray(faces)
     timings = {}
     t = time.perf_counter()
-    _, enclosed, origin, pitch = voxelize(np.asarray(vertices, float), np.asarray(faces), resolution)
+    _, empty, origin, pitch, closed_by_box, surface = voxelize(vertices, faces, resolution, seeds)
     timings["voxelize"] = time.perf_counter() - t
-    if not enclosed.any():
-        raise TopologyError(f"scene '{scene_name}' encloses no empty space at voxel_resolution={resolution} "
-                            f"(open scene: visibility clusters need closed rooms)")
+    if not empty.any():
+        raise TopologyError(f"scene '{scene_name}' has no empty space at voxel_resolution={resolution}: no "
+                            f"enclosed room, and no camera or positional light in the space around it")
     t = time.perf_counter()
-    coords, graph = skeleton_graph(enclosed)
-    coords, graph = prune_spurs(coords, graph, enclosed)
-    depth = ndimage.distance_transform_edt(enclosed)
-    radius = np.maximum(depth[tuple(coords.T)] - 0.5, 0.5) * pitch  # centre to the voxelised surface
+    coords, graph = skeleton_graph(empty)
+    coords, graph = prune_spurs(coords, graph, empty)
     pos = origin + (coords + 0.5) * pitch
     timings["skeleton"] = time.perf_counter() - t
     t = time.perf_counter()
-    kind, association, seg_edges = segment(graph, pos, radius)
+    radius = surface.distance(pos)
+    if closed_by_box:  # the closing box's walls bound the balls too
+        box_lo, box_hi = origin + pitch, origin + (np.asarray(empty.shape) - 1) * pitch
+        radius = np.minimum(radius, np.minimum(pos - box_lo, box_hi - pos).min(axis=1))
+    radius = np.maximum(radius, 1e-3 * pitch)  # a node is an empty voxel's centre: never on a surface
+    timings["maximal_balls"] = time.perf_counter() - t
+    t = time.perf_counter()
+    kind, association, seg_edges, edge_lines = segment(graph, pos, radius)
     seg_nodes = np.flatnonzero(kind != KIND_UNCLASSIFIED)
     label, count = cluster(seg_nodes, seg_edges, pos, radius, kind, alpha_percent)
+    greedy_count = count
+    cluster_radius = np.zeros(count)
+    for node, c in label.items():
+        cluster_radius[c] = max(cluster_radius[c], radius[node])
+    _, _, _, paper_r, paper_pairs = gates_between(seg_edges, edge_lines, label, pos, radius)
+    relabel, count = merge_wide_gates(count, cluster_radius, paper_r[:, 0], paper_pairs, merge_fraction)
+    label = {node: int(relabel[c]) for node, c in label.items()}
+    centres, normals, majors, semi, pairs = gates_between(seg_edges, edge_lines, label, pos, radius, surface,
+                                                          OCCUPIED_DISTANCE * pitch)
     node_cluster = np.array([label[int(association[i])] for i in range(len(coords))], np.int32)
-    centres, normals, radii, pairs = [], [], [], []
-    for a, b in seg_edges:
-        ca, cb = label[int(a)], label[int(b)]
-        if ca == cb:
-            continue
-        d = pos[b] - pos[a]
-        centres.append(0.5 * (pos[a] + pos[b]))
-        normals.append(d / np.linalg.norm(d))
-        radii.append(min(radius[a], radius[b]))
-        pairs.append((ca, cb))
     timings["segment_cluster_gates"] = time.perf_counter() - t
     t = time.perf_counter()
-    grid = cluster_grid(enclosed, coords, node_cluster)
+    grid = cluster_grid(empty, coords, node_cluster)
     timings["cluster_grid"] = time.perf_counter() - t
-    return Topology(origin=origin, pitch=pitch, dims=tuple(int(x) for x in enclosed.shape), cluster_grid=grid,
+    return Topology(origin=origin, pitch=pitch, dims=tuple(int(x) for x in empty.shape), cluster_grid=grid,
                     node_position=pos, node_radius=radius, node_kind=kind, node_segment=association,
                     node_cluster=node_cluster, segmented_edges=seg_edges, cluster_count=count,
-                    gate_centre=np.array(centres, float).reshape(-1, 3),
-                    gate_normal=np.array(normals, float).reshape(-1, 3),
-                    gate_radius=np.array(radii, float), gate_clusters=np.array(pairs, np.int64).reshape(-1, 2),
-                    enclosed_voxels=int(enclosed.sum()), timings_s=timings)
+                    greedy_cluster_count=greedy_count, gate_centre=centres, gate_normal=normals,
+                    gate_major=majors, gate_semi_axes=semi, gate_clusters=pairs, empty_voxels=int(empty.sum()),
+                    closed_by_box=closed_by_box, timings_s=timings)

@@ -232,3 +232,26 @@ def test_parameters(gl_ctx):
     with pytest.raises(ParamError, match="GL_MAX_TEXTURE_SIZE"):
         run_method(gl_ctx, InstantRadiosityShadowed, make_open_box(), "main", 16, 16,
                    {"vpl_count": 8192, "shadow_resolution": 512}, frames=1)
+
+
+def test_rsm_flux_takes_the_shading_normal_cosine(gl_ctx):
+    """A flat quad whose vertex normals tilt 40 degrees, under a directional light along its face
+    normal: Mitsuba's irradiance is E cos(40) (cosine against the shading normal), so the RSM's
+    total reflected flux is rho E cos(40) A, not rho E A."""
+    from bench.scene import DirectionalLight, Scene
+    tilt = np.radians(40.0)
+    v = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], float)
+    normals = np.tile([np.sin(tilt), np.cos(tilt), 0.0], (4, 1))
+    scene = Scene.build("tilted", v, np.array([[0, 2, 1], [0, 3, 2]]), [0.5, 0.5, 0.5],
+                        [DirectionalLight([0, -1, 0], 3.0)], {"main": Camera([0, 3, 3], [0, 0, 0])}, normals=normals)
+    gpu = GpuScene(gl_ctx, scene)
+    passes = SharedPasses(gpu, gpu.view("main", 16, 16), {"rsm"}, rsm_resolution=256)
+    try:
+        passes.render(StageProfiler(gl_ctx))
+        rsm = passes.rsm
+        flux = np.frombuffer(rsm.flux.read(), np.float32).reshape(rsm.flux.height, rsm.flux.width, 4)
+        total = flux[..., 0].astype(np.float64).sum()
+    finally:
+        passes.release()
+        gpu.release()
+    assert total == pytest.approx(0.5 * 3.0 * np.cos(tilt) * 4.0, rel=0.02)

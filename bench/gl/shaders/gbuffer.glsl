@@ -1,9 +1,12 @@
 // GBuffer: re-centred world position (w = 1 where covered), shading normal and geometric
 // normal flipped towards the camera (two-sided surfaces, as Mitsuba's `twosided` diffuse),
-// albedo, and the triangle index.
+// albedo, and the triangle index. The depth test runs on the distance to the camera times
+// u_depth_scale (1 / far), linear, not on the projection's 1/z depth: with near = 1e-5 far a
+// 24-bit 1/z buffer cannot order surfaces closer than ~far/170 at the far end.
 #include "common.glsl"
 uniform mat4 u_view_proj;
 uniform vec3 u_camera_pos;
+uniform float u_depth_scale;
 
 #if defined VERTEX_SHADER
 in vec3 in_position;
@@ -58,5 +61,6 @@ void main() {
     out_normal = vec4(n, 0.0);
     out_albedo = vec4(triangle_albedo[gl_PrimitiveID].rgb, 1.0);
     out_geo_normal = vec4(ng, float(gl_PrimitiveID));
+    gl_FragDepth = clamp(length(to_camera) * u_depth_scale, 0.0, 1.0);
 }
 #endif

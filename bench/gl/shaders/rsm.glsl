@@ -1,20 +1,28 @@
 // Reflective shadow map layer (Dachsbacher & Stamminger 2005): per texel the first surface seen
 // from the light, its normal (facing the light), and the flux it reflects,
 // rho * Phi_in with Phi_in = I * falloff * (texel solid angle) for point and spot lights and
-// E * (texel area) for directional lights.
+// E * (texel area) for directional lights, times |<n_s, l>| / |<n_g, l>|: the irradiance of a
+// smooth-shaded surface takes its cosine against the shading normal n_s (the vertex normals
+// interpolated, as Mitsuba), while the texel's footprint follows the geometric normal n_g.
+// (Where n_s and n_g put the light on different sides, at a smooth mesh's terminator, Mitsuba
+// would emit on the shading side; the VPL keeps emitting on the lit geometric side.)
 #include "common.glsl"
 #include "lights.glsl"
 uniform mat4 u_view_proj;
 uniform int u_light_index;
 uniform vec4 u_layer_info;  // as ShadowLayer.info
 uniform int u_rsm_resolution;
+uniform vec2 u_depth_map;   // linear depth test on the light-space metric, as shadow_depth.glsl
 
 #if defined VERTEX_SHADER
 in vec3 in_position;
+in vec3 in_normal;
 out vec3 v_position;
+out vec3 v_normal;
 out vec4 v_clip;
 void main() {
     v_position = in_position;
+    v_normal = in_normal;
     v_clip = u_view_proj * vec4(in_position, 1.0);
     gl_Position = v_clip;
 }
@@ -24,8 +32,10 @@ void main() {
 layout(triangles) in;
 layout(triangle_strip, max_vertices = 3) out;
 in vec3 v_position[];
+in vec3 v_normal[];
 in vec4 v_clip[];
 out vec3 g_position;
+out vec3 g_normal;
 out vec4 g_clip;
 flat out vec3 g_geo_normal;
 void main() {
@@ -33,6 +43,7 @@ void main() {
     vec3 geo = n / max(length(n), 1e-30);
     for (int k = 0; k < 3; ++k) {
         g_position = v_position[k];
+        g_normal = v_normal[k];
         g_clip = v_clip[k];
         g_geo_normal = geo;
         gl_PrimitiveID = gl_PrimitiveIDIn;
@@ -45,6 +56,7 @@ void main() {
 
 #if defined FRAGMENT_SHADER
 in vec3 g_position;
+in vec3 g_normal;
 in vec4 g_clip;
 flat in vec3 g_geo_normal;
 layout(location = 0) out vec4 out_position;
@@ -65,8 +77,13 @@ void main() {
         float solid_angle = s * s / pow(1.0 + dot(plane, plane), 1.5);
         phi_in = incident * dist * dist * solid_angle;  // I * falloff * d_omega
     }
+    float len = length(g_normal);
+    vec3 ns = len > 0.0 ? g_normal / len : n;
+    phi_in *= abs(dot(ns, wi)) / max(abs(dot(n, wi)), 1e-4);
     out_position = vec4(g_position, 1.0);
     out_normal = vec4(n, 0.0);
     out_flux = vec4(triangle_albedo[gl_PrimitiveID].rgb * phi_in, 1.0);
+    float metric = u_layer_info.y > 0.5 ? dot(g_position, lights[u_light_index].direction_cos_cutoff.xyz) : dist;
+    gl_FragDepth = clamp((metric - u_depth_map.x) * u_depth_map.y, 0.0, 1.0);
 }
 #endif

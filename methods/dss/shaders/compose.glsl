@@ -1,5 +1,6 @@
 // Upsample and sum: every full-resolution pixel takes level 0 as is and each coarser level
-// bilinearly from the four nearest level pixels on its own surface (weights of the rejected
+// bilinearly from the four nearest level pixels on its own surface, level pixel X sitting at
+// full-resolution pixel X 2^l where its receiver is (deinterleave.glsl) (weights of the rejected
 // ones dropped and the rest renormalised; if all four are rejected, the same-surface pixels
 // of the 3 x 3 around the nearest one; if none, plain bilinear over the covered ones: a pixel
 // on a surface too small for the level still gets its far field), then applies its rho / pi.
@@ -29,9 +30,11 @@ void main() {
     for (int l = 1; l < LEVELS; ++l) {
         ivec2 size = u_level_size[l].xy;
         float footprint = exp2(float(l)) * u_pixel_k * depth;
-        vec2 c = (vec2(p) + 0.5) / exp2(float(l)) - 0.5;
-        ivec2 X0 = ivec2(floor(c));
-        vec2 f = c - vec2(X0);
+        // nodes X0, X0 + 1 bracket p: at X 2^l, the last one clamped to the screen (node_pixel)
+        ivec2 screen = textureSize(u_gbuffer_position, 0);
+        ivec2 X0 = min(p >> l, size - 2);
+        ivec2 P0 = node_pixel(l, X0, screen), P1 = node_pixel(l, X0 + 1, screen);
+        vec2 f = clamp(vec2(p - P0) / vec2(max(P1 - P0, ivec2(1))), 0.0, 1.0);
         vec3 sum = vec3(0.0), plain = vec3(0.0);
         float wsum = 0.0, plain_wsum = 0.0;
         for (int k = 0; k < 4; ++k) {
@@ -51,7 +54,7 @@ void main() {
             plain_wsum += wb;
         }
         if (wsum <= 0.0) {
-            ivec2 Xc = ivec2(floor(c + 0.5));
+            ivec2 Xc = X0 + ivec2(greaterThanEqual(f, vec2(0.5)));
             for (int k = 0; k < 9; ++k) {
                 ivec2 X = Xc + ivec2(k % 3 - 1, k / 3 - 1);
                 if (any(lessThan(X, ivec2(0))) || any(greaterThanEqual(X, size))) continue;

@@ -1,6 +1,14 @@
 // Builds the receivers of every level in the deinterleaved atlas layout: level pixel X stands
-// for one pixel of its 2^l x 2^l block (the centre one, else the first covered one), storing
-// its position (w = view depth > 0 where covered, 0 elsewhere) and normal.
+// for one pixel of its 2^l x 2^l block, storing its position (w = view depth > 0 where
+// covered, 0 elsewhere) and normal. The receivers nest: level l's receiver of X is the
+// full-resolution pixel X 2^l, which is also the receiver of every finer level there, and
+// compose.glsl places level l's samples at exactly those pixels (bilinear nodes X 2^l). So at
+// a receiver, every level decides its shell from the same point: the levels partition the
+// surfels there exactly (each surfel is counted once), and elsewhere the compose pass
+// interpolates between such points. The last node of a row or column sits on the screen's last
+// pixel (node_pixel), so no pixel is extrapolated. Where the node's pixel is uncovered, the
+// first covered pixel of the 2^l x 2^l block from it (row by row) stands in, with its own
+// position used everywhere.
 #include "fullscreen.glsl"
 #include "dss_common.glsl"
 uniform sampler2D u_gbuffer_position;
@@ -18,8 +26,8 @@ void main() {
     if (!level_pixel_of_atlas(ivec2(gl_FragCoord.xy), l, X)) return;
     int block = 1 << l;
     ivec2 screen = textureSize(u_gbuffer_position, 0);
-    ivec2 base = X * block;
-    ivec2 chosen = min(base + ivec2(block / 2), screen - 1);
+    ivec2 base = node_pixel(l, X, screen);
+    ivec2 chosen = base;
     vec4 p = texelFetch(u_gbuffer_position, chosen, 0);
     for (int k = 0; k < block * block && p.w == 0.0; ++k) {
         ivec2 q = base + ivec2(k % block, k / block);

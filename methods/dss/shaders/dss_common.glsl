@@ -6,10 +6,11 @@
 
 struct Surfel {
     vec4 position_area;     // xyz centre (re-centred world), w area (m^2)
-    vec3 normal;            // unit geometric normal of its triangle
+    vec3 normal;            // unit geometric normal of its triangle: the geometric term's cosine
     uint key;               // stable hash of (patch, sub-triangle): picks the interleaved sub-buffer
-    vec4 radiosity_front;   // rgb rho E on the side +normal, w luminance
-    vec4 radiosity_back;    // rgb rho E on the side -normal, w luminance
+    vec4 radiosity_front;   // rgb rho E on the side +shading_normal, w luminance
+    vec4 radiosity_back;    // rgb rho E on the side -shading_normal, w luminance
+    vec4 shading_normal;    // xyz unit shading normal at the centre: picks the side a receiver sees
 };
 layout(std430, binding = BINDING_DSS_SURFELS) buffer SurfelBlock { Surfel surfels[]; };
 
@@ -25,14 +26,18 @@ layout(std430, binding = BINDING_DSS_COUNTER) buffer SurfelCounter {
 
 float luminance(vec3 c) { return dot(c, vec3(0.2126, 0.7152, 0.0722)); }
 
-// Level l has ceil(W / 2^l) x ceil(H / 2^l) pixels; each of its pixels stands for one receiver
-// of its 2^l x 2^l block. It is stored deinterleaved: INTERLEAVE x INTERLEAVE sub-buffers of
+// Level l has ceil((W - 1) / 2^l) + 1 x ceil((H - 1) / 2^l) + 1 pixels; pixel X stands for the
+// receiver at full-resolution pixel node_pixel(l, X). It is stored deinterleaved: INTERLEAVE x INTERLEAVE sub-buffers of
 // tile x tile pixels, sub-buffer (i, j) holding the level pixels X = INTERLEAVE * uv + (i, j).
 // Levels are stacked vertically in one atlas, level l from row u_level_y[l].
 uniform ivec4 u_level_size[LEVELS];   // W_l, H_l, tile width, tile height
 uniform int u_level_y[LEVELS];
 uniform float u_pixel_k;              // full-resolution pixel size at unit view depth (m / m)
 uniform float u_shell_pixels;         // S: level 0 takes receivers closer than 2 S pixel footprints
+
+// Full-resolution pixel of level l's node X (its receiver's pixel, where compose places it):
+// X 2^l, the last node of a row or column clamped to the screen's last pixel.
+ivec2 node_pixel(int l, ivec2 X, ivec2 screen) { return min(X << l, screen - 1); }
 
 ivec2 atlas_of(int l, ivec2 X) {
     ivec4 s = u_level_size[l];

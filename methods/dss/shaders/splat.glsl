@@ -5,6 +5,8 @@
 // radius r where the surfel's contribution per unit area falls under the threshold. The
 // fragment adds the unshadowed surfel -> receiver irradiance
 //     E = B/pi <n_x, w>+ |<n_y, w>| A / max(eps, d)^2      (Lambertian emission, as manylights)
+// with B the radiosity of the side of the surfel's shading normal the receiver is on and n_y
+// its geometric normal (Mitsuba's twosided diffuse with shading normals, as manylights).
 // (the receiver's rho/pi is applied after upsampling, at full resolution).
 #include "common.glsl"
 #include "dss_common.glsl"
@@ -31,6 +33,7 @@ layout(triangle_strip, max_vertices = 4 * LEVELS) out;
 flat in int v_index[];
 flat out vec4 g_position_area;
 flat out vec4 g_normal_radius;
+flat out vec3 g_shading_normal;
 flat out vec3 g_front;
 flat out vec3 g_back;
 flat out int g_level;
@@ -70,6 +73,7 @@ void main() {
     float depth = -c.z;
     g_position_area = sf.position_area;
     g_normal_radius = vec4(sf.normal, r);
+    g_shading_normal = sf.shading_normal.xyz;
     g_front = sf.radiosity_front.rgb;
     g_back = sf.radiosity_back.rgb;
     for (int l = 0; l < LEVELS; ++l) {
@@ -91,7 +95,8 @@ void main() {
         ivec4 box = screen_box(c, outer);
         if (box.x > box.z || box.y > box.w) continue;
         ivec4 size = u_level_size[l];
-        ivec2 X0 = box.xy >> l, X1 = box.zw >> l;
+        // receivers of level pixel X lie in [X 2^l, (X + 1) 2^l) or on the clamped last node
+        ivec2 X0 = box.xy >> l, X1 = min((box.zw + (1 << l) - 1) >> l, size.xy - 1);
         uint h = hash_u32(sf.key ^ hash_u32(u_rand + uint(l) * 0x9E3779B9u));
         ivec2 cls = ivec2(int(h % uint(INTERLEAVE)), int((h / uint(INTERLEAVE)) % uint(INTERLEAVE)));
         if (X1.x < cls.x || X1.y < cls.y) continue;
@@ -115,6 +120,7 @@ uniform sampler2D u_receiver_position;   // deinterleaved atlas (deinterleave.gl
 uniform sampler2D u_receiver_normal;
 flat in vec4 g_position_area;
 flat in vec4 g_normal_radius;
+flat in vec3 g_shading_normal;
 flat in vec3 g_front;
 flat in vec3 g_back;
 flat in int g_level;
@@ -128,8 +134,8 @@ void main() {
     if (!(dist > 0.0) || dist >= g_normal_radius.w) discard;
     if (shell_level(dist, xp.w) != g_level) discard;
     vec3 w = d / dist;
-    float cos_y = -dot(g_normal_radius.xyz, w);
-    vec3 radiosity = cos_y > 0.0 ? g_front : g_back;   // the side the receiver is on
+    float cos_y = dot(g_normal_radius.xyz, w);
+    vec3 radiosity = dot(g_shading_normal, w) < 0.0 ? g_front : g_back;   // the side the receiver is on
     if (all(equal(radiosity, vec3(0.0)))) discard;
     float cos_x = dot(texelFetch(u_receiver_normal, a, 0).xyz, w);
     if (cos_x <= 0.0) discard;

@@ -3,7 +3,12 @@
 // (sub-)triangle's edge lengths and area so that sub-triangles have about the target area
 // (uniform density in object space; level 1 = the whole triangle: refine, never decimate).
 // The geometry stage turns each sub-triangle into one surfel at its centroid with its exact
-// area and the shadowed direct light reaching both of its sides (B = rho E per side).
+// area and the shadowed direct light reaching both sides of its shading normal (B = rho E per
+// side), E averaged over the 4^IRRADIANCE_SPLITS centroids of the sub-triangle's regular
+// subdivision (a quadrature of the sub-triangle's mean irradiance: a point sample at the
+// centroid alone misjudges a sub-triangle a spot's cone edge crosses). The shading normal is
+// the vertex normals interpolated at each point (Mitsuba's shading frame); the incident
+// cosine is taken against it, the shadow-map offset along the geometric normal.
 // Triangles needing more than MAX_TESS_LEVEL are pre-split on the CPU into K x K sub-patches
 // of the regular subdivision (one patch record per sub-triangle q < K^2).
 // COUNT_ONLY: just count the surfels (prepare() sizes the surfel buffer with it).
@@ -13,7 +18,7 @@
 #endif
 #include "dss_common.glsl"
 
-struct DssTriangle { vec4 v0; vec4 v1; vec4 v2; vec4 normal; };
+struct DssTriangle { vec4 v0; vec4 v1; vec4 v2; vec4 normal; vec4 n0; vec4 n1; vec4 n2; };  // n_i: vertex normals
 layout(std430, binding = BINDING_DSS_TRIANGLES) readonly buffer DssTriangleBlock { DssTriangle dss_triangles[]; };
 layout(std430, binding = BINDING_DSS_PATCHES) readonly buffer DssPatchBlock { uvec4 dss_patches[]; };  // triangle, K, q, 0
 
@@ -23,12 +28,14 @@ uniform uint u_capacity;       // surfel records the buffer holds
 
 #if defined VERTEX_SHADER
 out vec3 v_position;
+out vec3 v_normal;   // vertex normals interpolated at the patch corner (not normalised: linear)
 flat out uint v_triangle;
 flat out uint v_patch;
 
-// Corner `corner` of sub-triangle q of the regular K x K subdivision of (a, b, c): row r holds
-// the r + 1 upright triangles with lattice a + b = r and the r inverted ones with a + b = r - 1.
-vec3 sub_triangle_corner(vec3 a, vec3 b, vec3 c, uint K, uint q, uint corner) {
+// Barycentric coordinates in (a, b, c) of corner `corner` of sub-triangle q of the regular
+// K x K subdivision: row r holds the r + 1 upright triangles with lattice a + b = r and the r
+// inverted ones with a + b = r - 1.
+vec3 sub_triangle_corner(uint K, uint q, uint corner) {
     uint r = uint(sqrt(float(q)));
     while (r * r > q) r--;
     while ((r + 1u) * (r + 1u) <= q) r++;
@@ -43,7 +50,8 @@ vec3 sub_triangle_corner(vec3 a, vec3 b, vec3 c, uint K, uint q, uint corner) {
         ij = corner == 0u ? base + uvec2(1u, 0u) : corner == 1u ? base + uvec2(1u, 1u) : base + uvec2(0u, 1u);
     }
     float inv_k = 1.0 / float(K);
-    return a + (float(ij.x) * inv_k) * (b - a) + (float(ij.y) * inv_k) * (c - a);
+    vec2 uv = vec2(ij) * inv_k;
+    return vec3(1.0 - uv.x - uv.y, uv.x, uv.y);
 }
 
 void main() {
@@ -52,8 +60,11 @@ void main() {
     DssTriangle tri = dss_triangles[rec.x];
     if (rec.y == 1u) {
         v_position = corner == 0u ? tri.v0.xyz : corner == 1u ? tri.v1.xyz : tri.v2.xyz;
+        v_normal = corner == 0u ? tri.n0.xyz : corner == 1u ? tri.n1.xyz : tri.n2.xyz;
     } else {
-        v_position = sub_triangle_corner(tri.v0.xyz, tri.v1.xyz, tri.v2.xyz, rec.y, rec.z, corner);
+        vec3 w = sub_triangle_corner(rec.y, rec.z, corner);
+        v_position = w.x * tri.v0.xyz + w.y * tri.v1.xyz + w.z * tri.v2.xyz;
+        v_normal = w.x * tri.n0.xyz + w.y * tri.n1.xyz + w.z * tri.n2.xyz;
     }
     v_triangle = rec.x;
     v_patch = p;
@@ -63,9 +74,11 @@ void main() {
 #if defined TESS_CONTROL_SHADER
 layout(vertices = 3) out;
 in vec3 v_position[];
+in vec3 v_normal[];
 flat in uint v_triangle[];
 flat in uint v_patch[];
 out vec3 c_position[];
+out vec3 c_normal[];
 patch out uint c_triangle;
 patch out uint c_patch;
 
@@ -75,6 +88,7 @@ float edge_level(vec3 p, vec3 q) {
 
 void main() {
     c_position[gl_InvocationID] = v_position[gl_InvocationID];
+    c_normal[gl_InvocationID] = v_normal[gl_InvocationID];
     if (gl_InvocationID == 0) {
         vec3 p0 = v_position[0], p1 = v_position[1], p2 = v_position[2];
         float area = 0.5 * length(cross(p1 - p0, p2 - p0));
@@ -94,15 +108,18 @@ void main() {
 #if defined TESS_EVALUATION_SHADER
 layout(triangles, equal_spacing, ccw) in;
 in vec3 c_position[];
+in vec3 c_normal[];
 patch in uint c_triangle;
 patch in uint c_patch;
 out vec3 e_position;
+out vec3 e_normal;
 out vec3 e_coord;
 flat out uint e_triangle;
 flat out uint e_patch;
 void main() {
     vec3 u = gl_TessCoord;
     e_position = u.x * c_position[0] + u.y * c_position[1] + u.z * c_position[2];
+    e_normal = u.x * c_normal[0] + u.y * c_normal[1] + u.z * c_normal[2];
     e_coord = u;
     e_triangle = c_triangle;
     e_patch = c_patch;
@@ -114,6 +131,7 @@ void main() {
 layout(triangles) in;
 layout(points, max_vertices = 1) out;   // nothing is rasterised: surfels go to the SSBO
 in vec3 e_position[];
+in vec3 e_normal[];
 in vec3 e_coord[];
 flat in uint e_triangle[];
 flat in uint e_patch[];
@@ -126,14 +144,35 @@ void main() {
     float area = 0.5 * length(cross(e_position[1] - e_position[0], e_position[2] - e_position[0]));
     vec3 n = dss_triangles[t].normal.xyz;
     vec3 rho = triangle_albedo[t].rgb;
-    vec3 front = rho * direct_irradiance(y, n, n, true);
-    vec3 back = rho * direct_irradiance(y, -n, -n, true);
+    // mean irradiance over the centroids of the n x n subdivision (n = 2^IRRADIANCE_SPLITS):
+    // upright cell (i, j), i + j < n, at ((i, j) + 1/3) / n; inverted (i + j < n - 1) at + 2/3
+    const int splits = 1 << IRRADIANCE_SPLITS;
+    vec3 front = vec3(0.0), back = vec3(0.0);
+    for (int k = 0; k < splits * splits; ++k) {
+        int i = k / splits, j = k % splits;
+        vec2 uv;
+        if (i + j < splits) uv = (vec2(i, j) + 1.0 / 3.0) / float(splits);
+        else uv = (vec2(splits - 1 - i, splits - 1 - j) + 2.0 / 3.0) / float(splits);   // i + j >= n: inverted cell
+        vec3 w = vec3(1.0 - uv.x - uv.y, uv.x, uv.y);
+        vec3 p = w.x * e_position[0] + w.y * e_position[1] + w.z * e_position[2];
+        vec3 ns = w.x * e_normal[0] + w.y * e_normal[1] + w.z * e_normal[2];
+        float len = length(ns);
+        ns = len > 0.0 ? ns / len : n;
+        front += direct_irradiance(p, ns, n, true);
+        back += direct_irradiance(p, -ns, n, true);
+    }
+    float inv_count = 1.0 / float(splits * splits);
+    front *= rho * inv_count;
+    back *= rho * inv_count;
+    vec3 ns = e_normal[0] + e_normal[1] + e_normal[2];
+    float len = length(ns);
+    ns = len > 0.0 ? ns / len : n;
     float lf = luminance(front), lb = luminance(back);
     atomicMax(max_luminance_bits, floatBitsToUint(max(max(lf, lb), 0.0)));
     // independent of the order the GPU emits surfels in, so the sub-buffer choice is deterministic
     vec3 cc = (e_coord[0] + e_coord[1] + e_coord[2]) / 3.0;
     uint key = hash_u32(e_patch[0] * 2654435761u ^ hash_u32(floatBitsToUint(cc.x) ^ hash_u32(floatBitsToUint(cc.y))));
-    surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb));
+    surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, 0.0));
 #endif
 }
 #endif

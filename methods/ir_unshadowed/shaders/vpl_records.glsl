@@ -6,7 +6,8 @@
 struct Vpl {
     vec4 position;  // xyz re-centred position of the RSM texel's surface point, w unused
     vec4 normal;    // xyz unit geometric normal facing the light: the VPL emits on this side
-    vec4 flux;      // rgb flux the VPL carries (W): rho Phi_in of its texel / (N pdf)
+    vec4 flux;      // rgb flux the VPL carries (W): its texel's rho Phi_in |<n_s, l>| / |<n_g, l>|
+                    // (shading-normal irradiance, rsm.glsl) / (N pdf)
 };
 layout(std430, binding = BINDING_VPLS) buffer VplBlock { Vpl vpls[]; };
 

@@ -29,9 +29,10 @@ void main() {
         vec3 w = d / dist;
         float cos_x = dot(nx, w);
         if (cos_x <= 0.0) continue;
-        float cos_y = -dot(v.normal.xyz, w);       // y -> x against the VPL normal
-        vec3 radiosity = cos_y > 0.0 ? v.radiosity_front.rgb : v.radiosity_back.rgb;
-        float c = abs(cos_y);
+        // the side of the shading normal x is on picks the radiosity (Mitsuba's twosided
+        // diffuse); the geometric term's cosine is against the geometric normal
+        vec3 radiosity = dot(v.shading_normal.xyz, w) < 0.0 ? v.radiosity_front.rgb : v.radiosity_back.rgb;
+        float c = abs(dot(v.normal.xyz, w));
         float dc = max(u_eps, dist);
 #if EMISSION_FLC
         vec3 radiance = radiosity * (1.5 * INV_PI) * c;   // rho E 3/(2 pi) <n, w>+

@@ -1,5 +1,5 @@
 // Records shared by the pbgi programs: per-triangle lightmap chart maps, the covered texels,
-// and surfels (one disk per covered texel, or per cluster of texels at emitter_level > 0).
+// and surfels (one disk per covered texel, or per node of the emitter hierarchy).
 #ifndef PBGI_RECORDS_GLSL
 #define PBGI_RECORDS_GLSL
 

@@ -4,6 +4,9 @@
 // around x (shading normal n_x). It is blocked when it lies behind the visible surface at the
 // pixel it projects to; that surface point y_i (GBuffer) is then a sender patch of area
 // A_s = pi r_max^2 / N whose outgoing radiance L_s is its direct radiance (direct pass).
+// r_max is u_radius_m (radius_rel x scene radius), or (radius_rel = 0, the default) u_radius_rel x the mean view depth of
+// the covered pixels, read from the last mip level of view_depth.glsl's output; d_clamp is
+// u_clamp_rel x r_max, so the estimate does not depend on the scene's unit of length.
 // Interleaved patterns: the pixels of each PATTERN x PATTERN block use different sample sets
 // (one Cranley-Patterson offset per block cell applied to the frame's base set).
 // Output: rgb = indirect radiance, a = view depth of x (0 = background) for the blur.
@@ -15,9 +18,11 @@ uniform sampler2D u_gbuffer_albedo;
 uniform sampler2D u_direct_radiance;
 uniform mat4 u_view_proj;
 uniform int u_sample_count;      // N
-uniform float u_r_max;           // hemisphere radius (re-centred world units)
-uniform float u_sender_area;     // A_s = pi r_max^2 / N
-uniform float u_clamp;           // distance clamp d_clamp
+uniform sampler2D u_view_depth;  // mipmapped (view depth, covered); see view_depth.glsl
+uniform int u_view_depth_level;  // its last mip level (1 x 1)
+uniform float u_radius_m;        // r_max in world units (radius_rel x scene radius); 0: from the view
+uniform float u_radius_rel;      // r_max / mean view depth of the covered pixels (u_radius_m == 0)
+uniform float u_clamp_rel;       // distance clamp d_clamp / r_max
 uniform int u_pattern_size;      // M: M x M pixel blocks, M^2 sample sets
 uniform uint u_rand;             // per-frame random value
 
@@ -35,6 +40,13 @@ void main() {
     float depth_x = (u_view_proj * vec4(x, 1.0)).w;
     vec3 t, b;
     orthonormal_basis(nx, t, b);
+    float r_max = u_radius_m;
+    if (r_max == 0.0) {
+        vec2 mean = texelFetch(u_view_depth, ivec2(0), u_view_depth_level).rg;
+        r_max = u_radius_rel * mean.r / max(mean.g, 1e-30);
+    }
+    float sender_area = PI * r_max * r_max / float(u_sample_count);   // A_s
+    float d_clamp = u_clamp_rel * r_max;
 
     ivec2 cell = px % u_pattern_size;
     uint k = uint(cell.x + u_pattern_size * cell.y);
@@ -54,7 +66,7 @@ void main() {
         // Uniform direction on the hemisphere (cos theta = u1), uniform radius in volume.
         float cos_t = u1, sin_t = sqrt(max(0.0, 1.0 - u1 * u1)), phi = 2.0 * PI * u2;
         vec3 dir = t * (sin_t * cos(phi)) + b * (sin_t * sin(phi)) + nx * cos_t;
-        vec3 s = x + dir * (u_r_max * pow(u3, 1.0 / 3.0));
+        vec3 s = x + dir * (r_max * pow(u3, 1.0 / 3.0));
 
         vec4 clip = u_view_proj * vec4(s, 1.0);
         if (clip.w <= 0.0) continue;
@@ -66,17 +78,19 @@ void main() {
         vec3 y = yp.xyz;
         float depth_y = (u_view_proj * vec4(y, 1.0)).w;
         if (clip.w <= depth_y * (1.0 + DEPTH_BIAS_REL)) continue;   // in front of the surface: open
+        vec3 ny = texelFetch(u_gbuffer_normal, q, 0).xyz;
+        vec3 L = texelFetch(u_direct_radiance, q, 0).rgb;
         vec3 d = y - x;
         float dist = length(d);
         if (dist <= 0.0) continue;
         vec3 w = d / dist;
         float cos_r = dot(nx, w);
         // The GBuffer normal faces the camera: the direct radiance is that of this side.
-        float cos_s = -dot(texelFetch(u_gbuffer_normal, q, 0).xyz, w);
+        float cos_s = -dot(ny, w);
         if (cos_r <= 0.0 || cos_s <= 0.0) continue;
-        float dc = max(u_clamp, dist);
-        sum += texelFetch(u_direct_radiance, q, 0).rgb * (cos_r * cos_s / (dc * dc));
+        float dc = max(d_clamp, dist);
+        sum += L * (cos_r * cos_s / (dc * dc));
     }
-    out_radiance = vec4(rho_x * INV_PI * u_sender_area * sum, depth_x);
+    out_radiance = vec4(rho_x * INV_PI * sender_area * sum, depth_x);
 }
 #endif

@@ -2,7 +2,8 @@
 // normal (normalised) and total flux of the VPLs scattered to it. An empty VAL keeps its centre
 // (count 0: no VPL uses it). FINALIZE: the VAL's VPL count under the mapping C and, from the bounding rectangle of its VPLs on its plane,
 // the VAL's size lambda = sqrt(area), and its depth normalisation distance `far` (its distance
-// to the farthest corner of the scene's bounding box).
+// to the farthest corner of the scene's bounding box: an upper bound, which map_far.glsl lowers
+// to the largest distance drawn in its map).
 #include "val_records.glsl"
 layout(local_size_x = 64) in;
 uniform sampler2D u_sum_position;  // xyz sum, w count

@@ -6,13 +6,15 @@
 // VISIBILITY_CSSM = 0: hard, binary test against the paraboloid map at the VAL centre (one
 //   shadow map per cluster, as lightcuts-style clustered visibility).
 // VISIBILITY_CSSM = 1: parabolic convolution soft shadow maps (paper Sec. 4.1, 4.2):
-//   1. search kernel: the angle the VAL (size lambda) subtends from x;
+//   1. search kernel: the angle the VAL (size lambda) subtends from x, at least 2 texels;
 //   2. average blocker depth z_avg = [w * (z f_b(d, z))] / [w * f_b(d, z)] from the MIP-mapped
 //      basis and basis-z images (f_b = 1 - f: the blocker indicator); no blocker -> V = 1;
 //   3. penumbra angle seen from the VAL centre: alpha = atan(lambda (d - z_avg) / (z_avg d));
-//   4. V = [w * f(d, z)] with a box kernel of alpha, read as one trilinear MIP lookup, with
-//      the CSM reconstruction f = 1/2 + 2 sum_k (cos(c_k d) [w*sin(c_k z)] - sin(c_k d) [w*cos(c_k z)]) / c_k
-//      scaled by 2 and clamped (Annen et al.'s "scaled expansion": f(d, d) = 1/2 -> lit).
+//   4. F = [w * f(d, z)] with a box kernel of alpha, read as one trilinear MIP lookup, with
+//      the CSM reconstruction f = 1/2 + 2 sum_k (cos(c_k d) [w*sin(c_k z)] - sin(c_k d) [w*cos(c_k z)]) / c_k,
+//      and V = clamp(1 + s (F - 1/2), 0, 1): a receiver seeing its own surface (F = 1/2) is
+//      lit; s = 2 is Annen et al.'s scaled expansion, the default s = 3 also cuts the
+//      ringing and the ramp of the 4-term step (see the method's manual).
 //   Kernel sizes turn into texture units with the paraboloid's local scale: the map is
 //   conformal (a stereographic projection), 1 / (2 (1 + cos theta)) texture widths per radian.
 //   Receivers behind the VAL's plane are outside the map: V = 1 (paper Sec. 5.1).
@@ -27,31 +29,52 @@ uniform float u_normal_offset;
 uniform ivec2 u_size;
 layout(r32f, binding = 5) writeonly uniform image2DArray u_visibility;
 #if VISIBILITY_CSSM
-uniform sampler2DArray u_basis_sin;
-uniform sampler2DArray u_basis_cos;
-uniform sampler2DArray u_basis_zsin;
-uniform sampler2DArray u_basis_zcos;
-uniform sampler2DArray u_basis_z;
+uniform sampler2D u_basis_sin[TERM_GROUPS];   // atlases tiled as the depth atlas, MIP-mapped
+uniform sampler2D u_basis_cos[TERM_GROUPS];
+uniform sampler2D u_basis_zsin[TERM_GROUPS];  // half resolution: level L here is level L + 1
+uniform sampler2D u_basis_zcos[TERM_GROUPS];
+uniform sampler2D u_basis_z;
+uniform vec2 u_atlas_size;
 uniform float u_blocker_min;  // below this filtered blocker fraction: no blocker
+uniform float u_csm_sharpening;  // slope s of the scaled reconstruction clamp(1 + s (F - 1/2))
 
-// Filtered CSM reconstruction at normalised receiver depth d: x = [w * f(d, z)] and
-// y = [w * (z f(d, z))], f the (unscaled) Fourier step 1 for z > d, 0 for z < d.
-vec2 csm_filtered(int j, vec2 tex, float lod, float d) {
-    float f = 0.0, zf = 0.0;
+// Normalised atlas coordinates of map coordinates `tex` in [0, 1]^2 of VAL j's tile for a
+// trilinear lookup at full-resolution level `lod`: kept half a texel of the coarser level
+// inside the tile, so that the filter never reads a neighbouring VAL's tile (the same
+// coordinates serve the half-resolution atlases at level lod - 1).
+vec2 atlas_coord(int j, vec2 tex, float lod) {
+    float half_texel = 0.5 * exp2(min(ceil(lod), float(MAX_LOD))) / float(u_resolution);
+    vec2 tile = vec2(j % u_tiles_x, j / u_tiles_x);
+    return (tile + clamp(tex, vec2(half_texel), vec2(1.0 - half_texel))) * float(u_resolution) / u_atlas_size;
+}
+
+// Filtered CSM reconstruction at normalised receiver depth d: [w * f(d, z)], f the (unscaled)
+// Fourier step, 1 for z > d, 0 for z < d.
+float csm_filtered(vec2 at, float lod, float d) {
+    float f = 0.0;
     for (int g = 0; g < TERM_GROUPS; ++g) {
-        vec3 at = vec3(tex, float(j * TERM_GROUPS + g));
         vec4 ck = PI * (2.0 * vec4(4 * g + 1, 4 * g + 2, 4 * g + 3, 4 * g + 4) - 1.0);
-        vec4 cd = cos(ck * d) / ck, sd = sin(ck * d) / ck;
-        f += dot(cd, textureLod(u_basis_sin, at, lod)) - dot(sd, textureLod(u_basis_cos, at, lod));
-        zf += dot(cd, textureLod(u_basis_zsin, at, lod)) - dot(sd, textureLod(u_basis_zcos, at, lod));
+        f += dot(cos(ck * d) / ck, textureLod(u_basis_sin[g], at, lod))
+           - dot(sin(ck * d) / ck, textureLod(u_basis_cos[g], at, lod));
     }
-    float z = textureLod(u_basis_z, vec3(tex, float(j)), lod).r;
-    return vec2(0.5 + 2.0 * f, 0.5 * z + 2.0 * zf);
+    return 0.5 + 2.0 * f;
+}
+
+// The blocker search's [w * (z f(d, z))] and [w * z] at level lod >= 1.
+vec2 csm_filtered_z(vec2 at, float lod, float d) {
+    float zf = 0.0;
+    for (int g = 0; g < TERM_GROUPS; ++g) {
+        vec4 ck = PI * (2.0 * vec4(4 * g + 1, 4 * g + 2, 4 * g + 3, 4 * g + 4) - 1.0);
+        zf += dot(cos(ck * d) / ck, textureLod(u_basis_zsin[g], at, lod - 1.0))
+            - dot(sin(ck * d) / ck, textureLod(u_basis_zcos[g], at, lod - 1.0));
+    }
+    float z = textureLod(u_basis_z, at, lod - 1.0).r;
+    return vec2(0.5 * z + 2.0 * zf, z);
 }
 
 float kernel_lod(float angle, float texture_per_radian) {
     float texels = angle * texture_per_radian * float(u_resolution);
-    return log2(max(texels, 1.0));
+    return min(log2(max(texels, 1.0)), float(MAX_LOD));
 }
 #endif
 
@@ -84,15 +107,17 @@ float val_visibility(int j, vec3 x, vec3 n_geo) {
     vec2 tex = uv * 0.5 + 0.5;
     float per_radian = 0.5 / (1.0 + cos_theta);
     float search = 2.0 * atan(0.5 * lambda, d_world);
-    vec2 fz = csm_filtered(j, tex, kernel_lod(search, per_radian), d);
-    float blocked = 1.0 - fz.x;                   // [w * f_b]
+    float search_lod = max(kernel_lod(search, per_radian), 1.0);  // the basis-z starts at level 1
+    vec2 search_at = atlas_coord(j, tex, search_lod);
+    float blocked = 1.0 - csm_filtered(search_at, search_lod, d);  // [w * f_b]
     if (blocked < u_blocker_min) return 1.0;
-    float z_avg = clamp((textureLod(u_basis_z, vec3(tex, float(j)), kernel_lod(search, per_radian)).r - fz.y) / blocked,
-                        1e-6, d);                 // [w * z f_b] / [w * f_b]
+    vec2 zfz = csm_filtered_z(search_at, search_lod, d);
+    float z_avg = clamp((zfz.y - zfz.x) / blocked, 1e-6, d);     // [w * z f_b] / [w * f_b]
     float z_avg_world = z_avg * far;
     float alpha = atan(lambda * (d_world - z_avg_world), z_avg_world * d_world);
-    float rec = csm_filtered(j, tex, kernel_lod(alpha, per_radian), d).x;
-    return clamp(2.0 * rec, 0.0, 1.0);
+    float lod = kernel_lod(alpha, per_radian);
+    float rec = csm_filtered(atlas_coord(j, tex, lod), lod, d);
+    return clamp(1.0 + u_csm_sharpening * (rec - 0.5), 0.0, 1.0);
 #else
     ivec2 tile = ivec2(j % u_tiles_x, j / u_tiles_x);
     ivec2 t = clamp(ivec2((uv * 0.5 + 0.5) * float(u_resolution)), ivec2(0), ivec2(u_resolution - 1));

@@ -2,8 +2,9 @@
 // with ir_unshadowed's Lambertian VPL term, term for term:
 //   L(x) = rho_x / pi * sum_k Phi_k / pi * <n_x, w>+ <n_k, -w>+ / max(eps, |y_k - x|)^2
 // A VPL of another visibility cluster counts only if the pixel lies in the light cone from the
-// VPL through one of the gates of the VPL's cluster, i.e. the segment VPL -> pixel crosses that
-// gate's disk (the final cone test, paper V.D); the pixel may be in any other cluster (V).
+// VPL through a gate of the VPL's cluster into the pixel's cluster, or through a chain of
+// gates: the segment VPL -> pixel walks from cluster to cluster through the gates it crosses
+// and reaches the pixel's (reaches_through_gates; the final cone test, paper V.D).
 #include "fullscreen.glsl"
 #include "../../ir_unshadowed/shaders/vpl_records.glsl"
 #include "topology.glsl"
@@ -39,13 +40,7 @@ void main() {
             vec3 transfer = vpl_transfer(v, x, nx, u_eps);
             if (transfer == vec3(0.0)) continue;
             int c = vpl_cluster[k];
-            if (c != d) {
-                bool through = false;
-                ivec2 range = adjacency_range[c];
-                for (int e = range.x; e < range.y && !through; ++e)
-                    through = segment_crosses_gate(adjacency[e].y, v.position.xyz, x);
-                if (!through) continue;
-            }
+            if (c != d && !reaches_through_gates(c, d, v.position.xyz, x)) continue;
             sum += transfer;
         }
     }

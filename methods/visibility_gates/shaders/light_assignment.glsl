@@ -3,7 +3,8 @@
 // cluster always; a VPL of another visibility cluster C when the cone from it through one of
 // C's gates meets the cluster's bounding sphere (the sphere around its bounding box), whatever
 // cluster lies beyond that gate ("all cones created from the combination of the VPL and a
-// visibility gate", paper V.C). Brute force over the VPLs, as in the paper.
+// visibility gate", paper V.C): conservative for the gather's walk through gates, whose first
+// gate is one of C's. Brute force over the VPLs, as in the paper.
 #include "../../ir_unshadowed/shaders/vpl_records.glsl"
 #include "topology.glsl"
 layout(local_size_x = LA_GROUP) in;

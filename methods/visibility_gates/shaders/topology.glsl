@@ -9,11 +9,12 @@ uniform isampler3D u_cluster_grid;  // visibility cluster of every voxel
 uniform vec3 u_grid_origin;         // corner of voxel (0, 0, 0)
 uniform float u_grid_pitch;         // voxel edge
 uniform ivec3 u_grid_dims;
-uniform float u_gate_scale;         // gate radius multiplier (1: the paper's min of the two maximal balls)
+uniform float u_gate_scale;         // gate size multiplier (1: the opening's ellipse, or the paper's disk)
 
 struct Gate {
-    vec4 centre_radius;  // xyz disk centre, w radius (before u_gate_scale)
-    vec4 normal;         // xyz unit disk normal (along the segmented skeleton edge)
+    vec4 centre_radius;  // xyz ellipse centre, w major semi-axis (before u_gate_scale): bounding radius
+    vec4 normal;         // xyz unit normal (along the skeleton), w minor semi-axis (before u_gate_scale)
+    vec4 major;          // xyz unit major axis, in the gate's plane
 };
 layout(std430, binding = BINDING_GATES) readonly buffer GateBlock { Gate gates[]; };
 // cluster C's neighbours: entries [adjacency_range[C].x, adjacency_range[C].y) of adjacency,
@@ -39,20 +40,48 @@ int cluster_at(vec3 p, vec3 n) {
     return texelFetch(u_cluster_grid, v, 0).r;
 }
 
-// Exact test of the fragment shader: does the segment y -> x cross gate g's disk?
-bool segment_crosses_gate(int g, vec3 y, vec3 x) {
+// Where the segment y -> x crosses gate g's ellipse: its parameter t in (0, 1), or -1.
+float gate_crossing(int g, vec3 y, vec3 x) {
     vec3 c = gates[g].centre_radius.xyz;
-    float r = gates[g].centre_radius.w * u_gate_scale;
-    vec3 n = gates[g].normal.xyz;
+    float a = gates[g].centre_radius.w * u_gate_scale;
+    float b = gates[g].normal.w * u_gate_scale;
+    vec3 n = gates[g].normal.xyz, u = gates[g].major.xyz;
     float sy = dot(y - c, n), sx = dot(x - c, n);
-    if (sy * sx >= 0.0) return false;  // both on one side (or on the plane)
+    if (sy * sx >= 0.0) return -1.0;  // both on one side (or on the plane)
     float t = sy / (sy - sx);
     vec3 q = y + t * (x - y) - c;
-    return dot(q, q) <= r * r;
+    float qu = dot(q, u);
+    vec3 qv = q - qu * u - dot(q, n) * n;
+    // (qu / a)^2 + (|qv| / b)^2 <= 1, written without a division; an empty ellipse lets nothing through
+    bool inside = b > 0.0 && qu * qu * b * b + dot(qv, qv) * a * a <= a * a * b * b;
+    return inside ? t : -1.0;
+}
+
+// Exact test of the fragment shader: does light from y (cluster c) reach x (cluster d != c)
+// through the gates? The segment leaves each cluster through the first of its gates it crosses
+// (smallest t beyond the previous crossing) into the cluster beyond, for at most GATE_HOPS
+// gates; x is lit when that walk enters d.
+bool reaches_through_gates(int c, int d, vec3 y, vec3 x) {
+    int k = c;
+    float t_prev = 0.0;
+    for (int hop = 0; hop < GATE_HOPS; ++hop) {
+        float t_best = 2.0;
+        int next = -1;
+        ivec2 range = adjacency_range[k];
+        for (int e = range.x; e < range.y; ++e) {
+            float t = gate_crossing(adjacency[e].y, y, x);
+            if (t > t_prev && t < t_best) { t_best = t; next = adjacency[e].x; }
+        }
+        if (next < 0) return false;
+        if (next == d) return true;
+        k = next;
+        t_prev = t_best;
+    }
+    return false;
 }
 
 // Conservative test of the light assignment: can the cone from y through gate g's disk meet
-// the sphere (s, rho)? The disk lies in the ball B(c, r), whose tangent cone from y has
+// the sphere (s, rho)? The ellipse lies in the ball B(c, r) (r: its major semi-axis), whose tangent cone from y has
 // half-angle asin(r / |c - y|); a sphere meets that cone iff its centre is within the cone
 // widened by asin(rho / |s - y|). The sphere must also reach the far side of the gate plane.
 bool cone_meets_sphere(int g, vec3 y, vec3 s, float rho) {
