@@ -195,7 +195,7 @@ class Runner:
         self.rows: list[dict] = []
         self.kept: list[dict] = []   # rows of the folder this run does not produce (merge)
         self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
-        self._black_warned: set = set()
+        self._view_lit: dict = {}   # (scene, view) -> did any rendered row have light
 
     def _validate_params(self) -> dict:
         """Every --param of every method, checked before the first row: {(method, i): resolved}."""
@@ -377,6 +377,10 @@ class Runner:
         finally:
             if progress is not None:
                 progress.close()
+        for (scene_name, view), lit in self._view_lit.items():
+            if not lit:
+                self.log(f"gibench: warning: {scene_name}/{view}: every method rendered an all-black image "
+                         f"(does camera '{view}' see a lit surface?)")
         if references is not None:
             references.finish()
         df = store.save_results(self.run_dir, self.kept + self.rows)
@@ -435,10 +439,10 @@ class Runner:
         images = {"direct": result.direct, "indirect": result.indirect, "combined": result.combined}
         for comp, img in images.items():
             write_exr(image_dir / f"{comp}.exr", img)
-        if not np.any(np.asarray(result.combined) > 0) and (scene.name, view) not in self._black_warned:
-            self._black_warned.add((scene.name, view))
-            self.log(f"gibench: warning: {scene.name}/{view}/{method_name} rendered an all-black image "
-                     f"(does camera '{view}' see a lit surface?)")
+        # a view is suspicious only when no method lights it: `direct` alone is black by design
+        # where every lit surface is off screen (hidden_bounce, the far room of rooms)
+        view_key = (scene.name, view)
+        self._view_lit[view_key] = self._view_lit.get(view_key, False) or bool(np.any(np.asarray(result.combined) > 0))
         med, iqr = store.summarize_samples(result.frame_ms)
         row.update({"frame_ms": med, "frame_ms_iqr": iqr, "status": "ok",
                     "skipped_stages": json.dumps(list(result.skipped_stages)),

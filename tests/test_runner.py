@@ -191,6 +191,13 @@ def test_all_black_view_warns(tmp_path):
     assert not [m for m in logs if "all-black" in m]
 
 
+def test_view_lit_only_by_the_bounce_does_not_warn(tmp_path):
+    """hidden_bounce's camera sees no directly lit surface: `direct` is black by design there."""
+    logs = []
+    run(cfg(tmp_path, out="hb", scenes=["hidden_bounce"], methods=["direct", "manylights"]), log=logs.append)
+    assert not [m for m in logs if "all-black" in m]
+
+
 def Scene_with_camera(scene, camera):
     from bench.scene import Scene
     return Scene.build(scene.name, scene.vertices, scene.faces, scene.albedo, scene.lights, {"main": camera},

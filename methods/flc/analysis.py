@@ -1,7 +1,12 @@
 """Measurements about FLC's approximations and noise (not used when rendering).
 
+`count_vpls_reaching` (geometry only, numpy): Alg. 1 run on the scene's triangles (divergent
+ones cut into the m^2 equal pieces the divergent pass makes regular), and per receiver point
+the number of level-k VPLs whose f^k is non-zero there: the count that eq. 1 and Fig. 10 say
+grows with N_avg (levels.py, correction 3).
+
 Both work on the exact many-lights sum (eq. 4 with eq. 6's lobe, one VPL per triangle at its
-centroid, shadowed direct radiosity from `manylights`' own compute pass), split per pair
+centroid, shadowed direct radiosity from `manylights`' own compute pass, its record layout), split per pair
 (VPL t, pixel x) by d = |x - y| / |<n_t, (x - y)/|x - y|>|:
 
 `energy_beyond_support`: the share of the sum carried by pairs with d > D_N: the energy FLC's
@@ -50,7 +55,7 @@ def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: floa
         passes.render(prof)
         ml.render(Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=0, seed=0), prof)
         check_gl(ctx, "flc analysis")
-        vpl = np.frombuffer(ml.vpls.read(), dtype=np.float32).reshape(-1, 4, 4)[: gpu.triangle_count]
+        vpl = np.frombuffer(ml.vpls.read(), dtype=np.float32).reshape(-1, 5, 4)[: gpu.triangle_count]
         g = passes.gbuffer.read()
     finally:
         ml.release()
@@ -62,8 +67,9 @@ def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: floa
     area = vpl[:, 0, 3].astype(np.float64)
     n = vpl[:, 1, :3].astype(np.float64)
     front, back = vpl[:, 2, :3].astype(np.float64), vpl[:, 3, :3].astype(np.float64)
+    ns = vpl[:, 4, :3].astype(np.float64)   # the side of the shading normal picks the radiosity
     lit = ((front + back).sum(1) > 0) & (area > 0)
-    y, area, n, front, back = y[lit], area[lit], n[lit], front[lit], back[lit]
+    y, area, n, ns, front, back = y[lit], area[lit], n[lit], ns[lit], front[lit], back[lit]
     m = g["mask"]
     x, nx, rho = g["position"][m].astype(np.float64), g["normal"][m].astype(np.float64), g["albedo"][m]
     eps = eps_rel * facts.scene_radius
@@ -76,7 +82,7 @@ def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: floa
             cos_x = np.maximum((nx[s:s + chunk, None] * w).sum(-1), 0.0)
             cos_y = -(n[None] * w).sum(-1)
             c = np.abs(cos_y)
-            radiosity = np.where((cos_y > 0)[..., None], front[None], back[None])
+            radiosity = np.where(((ns[None] * w).sum(-1) < 0)[..., None], front[None], back[None])
             contrib = (radiosity * (1.5 / np.pi * c * c * cos_x / np.maximum(eps, dist) ** 2 * area[None])[..., None])
             contrib = (contrib * rho[s:s + chunk, None] / np.pi).sum(-1)
             with np.errstate(divide="ignore", invalid="ignore"):
@@ -90,7 +96,81 @@ def _levels(facts, flc_params: dict | None) -> tuple[FlcLevels, dict]:
     from methods.flc.method import ForwardLightCuts
     p = resolve_params(ForwardLightCuts, flc_params)
     return FlcLevels(facts.scene_radius, float(p["n_avg"]), p["mu"], p["levels"], p["dnear_factor"],
-                     last_level_unbounded=bool(p["last_level_unbounded"])), p
+                     last_level_unbounded=bool(p["last_level_unbounded"]), reach=p["reach"],
+                     scene_area=float(facts.total_area_m2)), p
+
+
+def _regular_pieces(scene, max_area: float):
+    """(centroids, unit normals, areas) of the scene's triangles, each cut into m^2 equal pieces
+    with m = ceil(sqrt(A / max_area)) (every piece regular)."""
+    tri = scene.vertices[scene.faces].astype(np.float64)          # (T, 3, 3)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    keep = area > 0
+    tri, area = tri[keep], area[keep]
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    m_all = np.maximum(1, np.ceil(np.sqrt(area / max_area))).astype(int)
+    cents, norms, areas = [], [], []
+    for m in np.unique(m_all):
+        sel = m_all == m
+        a, e1, e2 = tri[sel, 0], tri[sel, 1] - tri[sel, 0], tri[sel, 2] - tri[sel, 0]
+        # barycentric centroids of the m^2 sub-triangles of the regular subdivision
+        bc = []
+        for i in range(m):
+            for j in range(m - i):
+                bc.append(((i + 1 / 3) / m, (j + 1 / 3) / m))
+                if j < m - i - 1:
+                    bc.append(((i + 2 / 3) / m, (j + 2 / 3) / m))
+        bc = np.asarray(bc)                                        # (m^2, 2)
+        c = a[:, None] + bc[None, :, :1] * e1[:, None] + bc[None, :, 1:] * e2[:, None]
+        cents.append(c.reshape(-1, 3))
+        norms.append(np.repeat(normal[sel], m * m, axis=0))
+        areas.append(np.repeat(area[sel] / (m * m), m * m))
+    return np.concatenate(cents), np.concatenate(norms), np.concatenate(areas)
+
+
+def refined_scene(scene, max_edge: float):
+    """The scene with its triangles of area > max_edge^2 / 2 cut into edges <= max_edge (trimesh),
+    for a `manylights` reference of a scene with huge triangles (big_floor)."""
+    import trimesh
+    from bench.scene import Scene
+    big = scene.areas() > 0.5 * max_edge ** 2
+    v, f, idx = trimesh.remesh.subdivide_to_size(scene.vertices, scene.faces[big], max_edge=max_edge, return_index=True)
+    return Scene.build(scene.name + "_fine", np.concatenate([scene.vertices, v]),
+                       np.concatenate([scene.faces[~big], f + len(scene.vertices)]),
+                       np.concatenate([scene.albedo[~big], scene.albedo[big][idx]]), scene.lights, scene.cameras)
+
+
+def count_vpls_reaching(scene, flc_params: dict | None = None, receivers: int = 256, seed: int = 0) -> dict:
+    """Alg. 1 on the scene's (regular pieces of) triangles with FLC's parameters `flc_params`
+    (defaults otherwise), one draw; `receivers` random points on the surfaces (normal towards
+    the emitter, i.e. the maximum of eq. 12). Returns 'per_level' (mean count of level-k VPLs
+    with f^k(d) > 0 at a receiver, k = 0..N), 'total' (their sum) and 'levels'."""
+    facts = compute_facts(scene)
+    levels, _ = _levels(facts, flc_params)
+    rng = np.random.default_rng(seed)
+    y, n, area = _regular_pieces(scene, levels.divergent_area)
+    level = levels.level_of(rng.random(len(area)), area)
+    kept = level >= 0
+    y, n, level = y[kept], n[kept], level[kept]
+    tri = scene.vertices[scene.faces].astype(np.float64)
+    tri_area = scene.areas()
+    pick = rng.choice(len(tri_area), size=receivers, p=tri_area / tri_area.sum())
+    r1, r2 = rng.random(receivers), rng.random(receivers)
+    su = np.sqrt(r1)
+    x = (1 - su)[:, None] * tri[pick, 0] + (su * (1 - r2))[:, None] * tri[pick, 1] + (su * r2)[:, None] * tri[pick, 2]
+    counts = np.zeros(levels.levels + 1)
+    for s in range(0, receivers, 64):
+        v = x[s:s + 64, None] - y[None]                            # y -> x
+        dist = np.linalg.norm(v, axis=-1)
+        c = np.abs((v * n[None]).sum(-1)) / np.maximum(dist, 1e-300)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            d = np.where(c > 0, dist / c, np.inf)
+        f = levels.partition(d)                                    # (N+1, r, vpls)
+        for k in range(levels.levels + 1):
+            counts[k] += ((f[k] > 0) & (level == k)[None]).sum()
+    counts /= receivers
+    return {"per_level": counts, "total": float(counts.sum()), "levels": int(levels.levels)}
 
 
 def energy_beyond_support(ctx, scene, camera: str, width: int, height: int, flc_params: dict | None = None,
@@ -132,3 +212,35 @@ def level_statistics(ctx, scene, camera: str, width: int, height: int, flc_param
             "lit_vpls_per_subframe": area.sum() / s, "S_m2": s, "D_m": levels.d[: levels.levels + 1],
             "relative_std_subframe": rel, "relative_std": rel / np.sqrt(p["progressive_frames"]),
             "total": float(exact)}
+
+
+def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=range(8),
+                       flc_params: dict | None = None, jitter_frames: int = 16, reference_seed: int = 99,
+                       reference_scene=None) -> dict:
+    """One FLC frame per seed against `manylights` with the FLC lobe and `jitter_frames` jittered
+    VPL positions (the sum FLC is unbiased for; see method.py), rendered on `reference_scene` if
+    given (the same surfaces finer cut: `manylights` has one VPL per triangle, so a scene of huge
+    triangles needs many jitter frames). Returns per-seed 'ratio' (image
+    mean of FLC's indirect / the reference's), 'relmse' (against the reference), 'splat_ms'
+    (regular + divergent + upscale_blur GPU time), the mean ratio 'ratio_mean', the relative
+    spread 'ratio_spread' (std / mean over the seeds) and 'reference_mean'."""
+    from bench.harness import run_method
+    from methods.flc.method import ForwardLightCuts
+    from methods.manylights.method import ManyLights
+
+    facts = compute_facts(scene)
+    ref_scene = scene if reference_scene is None else reference_scene
+    ref = run_method(ctx, ManyLights, ref_scene, camera, width, height, {"emission": "flc", "jitter_frames": jitter_frames},
+                     seed=reference_seed, frames=1, facts=compute_facts(ref_scene)).indirect.astype(np.float64)
+    ratio, relmse, splat = [], [], []
+    for s in seeds:
+        r = run_method(ctx, ForwardLightCuts, scene, camera, width, height, flc_params, seed=s, frames=1, facts=facts)
+        img = r.indirect.astype(np.float64)
+        ratio.append(img.mean() / ref.mean())
+        relmse.append(float(((img - ref) ** 2).mean() / (ref ** 2).mean()))
+        splat.append(sum(float(np.median(r.stage_ms[k])) for k in ("regular", "divergent", "upscale_blur")
+                         if k in r.stage_ms))
+    ratio = np.asarray(ratio)
+    return {"ratio": ratio, "relmse": np.asarray(relmse), "splat_ms": np.asarray(splat),
+            "ratio_mean": float(ratio.mean()), "ratio_spread": float(ratio.std(ddof=1) / ratio.mean()) if len(ratio) > 1 else 0.0,
+            "reference_mean": float(ref.mean())}

@@ -9,7 +9,7 @@ Paper notation (Sec. 4-5):
     S_0 = 4 pi D_near^2 / N_avg                    eq. 1, D_near = dnear_factor * R_scene
     S_k = S_0 mu^k,  k = 0..N                      eq. 17
     S_bar_k = 1 / sum_{j<=k} 1 / S_j               Alg. 1
-    D_k = sqrt(S_0 mu^k),  D_{N+1} = D_N           eq. 18
+    D_k: the influence distance of level k         eq. 18 (see "Influence distances")
 
 Alg. 1 puts a triangle of area A in the first level k with u < A / S_bar_k (u uniform in
 [0, 1)), and discards it when there is none. The probability of level k is therefore
@@ -29,9 +29,45 @@ D_0 < D_1 < ... < D_N that do sum to 1 on ]0, D_N]:
              (D_{k+1} - d) / (D_{k+1} - D_k) on ]D_k, D_{k+1}]        (0 < k <= N)
     f^k(d) = 0 elsewhere
 
-(f^N has no falling ramp since D_{N+1} = D_N.) Beyond D_N every f^k is 0: contributions from
-d > D_N (far or grazing emitters) are cut. `last_level_unbounded` sets f^N = 1 beyond D_N,
-which makes the estimator exactly unbiased with respect to the many-lights sum (eq. 8).
+(f^N has no falling ramp since D_{N+1} = D_N.) Far field: by default (`last_level_unbounded`)
+f^N = 1 beyond D_N, so the f^k sum to 1 for every d > 0 and the estimator is unbiased (eq. 8-11)
+for the many-lights sum of eq. 4. The bounded variant (the paper's eq. 16 literally: every f^k
+is 0 beyond D_N) cuts far and grazing bounces (d > D_N).
+
+Correction 3, influence distances (eq. 18). The paper prints D_k = sqrt(S_0 mu^k) = sqrt(S_k).
+Its stated intent is otherwise. Eq. 1 is "a heuristic aiming at lighting pixels with
+approximately N_avg VPLs at least D_near far from them": the surface within distance D of a
+receiver is modelled as 4 pi D^2 (a receiver inside a closed environment), and level 0 keeps
+one VPL per S_0 of surface, so 4 pi D_near^2 / S_0 = N_avg VPLs of level 0 lie within D_near.
+Fig. 10 calls N_avg "the approximate number of VPLs influencing every pixel", and its times
+(1, 3, 7, 14 ms for N_avg = 64 .. 512) grow in proportion to N_avg. With the same model a
+level-k VPL reaches a receiver when it lies within D_k, and level k has one VPL per S_k, so
+about 4 pi D_k^2 / S_k level-k VPLs reach it. Asking for N_avg from every level (the same
+count per level, the hierarchical cut the paper mimics) gives
+
+    4 pi D_k^2 / S_k = N_avg   =>   D_k = sqrt(N_avg S_k / (4 pi)) = D_near mu^(k/2)
+
+(`reach="eq1_intent"`, the default): D_0 = D_near, as eq. 1 says, and the reach of every level
+grows with N_avg's count, not against it. The printed D_k = sqrt(S_k) (`reach="eq18_printed"`)
+gives every level 4 pi VPLs (times the hat's shape factor) whatever N_avg is, and a reach
+D_N = D_near sqrt(4 pi / N_avg) mu^(N/2) that shrinks as N_avg grows (at mu 4, N 5: 2.84,
+1.42, 0.71 R_scene for N_avg 64, 256, 1024). `expected_vpls_reaching` gives the count per level
+under the model; `analysis.count_vpls_reaching` measures it on a scene.
+
+Level set (`levels = -1`, the default). A level-k VPL stands for S_k of surface, so when S_k
+is several m^2 a frame rests on a handful of powerful VPLs (the paper's "spikes"); and with the
+last level unbounded every top-level VPL lights every pixel, so the top level gives each pixel
+A_scene / S_N VPLs whatever the reach (its lit ones cost a full-screen splat each). N is the
+fewest levels whose top level holds at most TOP_LEVEL_BUDGET (32) N_avg VPLs in the scene, and
+never more than the reach needs (D_N >= R_scene; beyond, more levels would only move the far
+field onto fewer VPLs):
+
+    N = min( ceil(log_mu (R_scene / D_0)^2),  ceil(log_mu (A_scene / (32 N_avg S_0))) ),  N >= 0
+
+(A_scene / (N_avg S_0) = A_scene / (4 pi D_near^2), independent of N_avg for eq1_intent.) At
+the defaults (mu 4, D_near 0.2 R) N = 0 on the benchmark's default scenes, sibenik and
+conference (A_scene <= 32 x 4 pi D_near^2) and 1 on sponza; the hierarchy pays off on scenes
+whose area is large against D_near^2.
 """
 from __future__ import annotations
 
@@ -42,6 +78,31 @@ import numpy as np
 from bench.gl.shaders import glsl_literal
 
 MAX_LEVELS = 16  # N <= 15: N + 1 levels
+REACHES = ("eq1_intent", "eq18_printed")
+TOP_LEVEL_BUDGET = 32   # level set: the top level holds at most this many times N_avg VPLs
+
+
+def _reach_scale(reach: str, n_avg: float) -> float:
+    """D_k = scale * sqrt(S_k): sqrt(N_avg / (4 pi)) for eq1_intent, 1 for eq18_printed."""
+    if reach == "eq1_intent":
+        return float(np.sqrt(n_avg / (4.0 * np.pi)))
+    if reach == "eq18_printed":
+        return 1.0
+    raise ValueError(f"flc: reach must be one of {list(REACHES)}, got {reach!r}")
+
+
+def auto_levels(scene_radius: float, n_avg: float, mu: float, dnear_factor: float, reach: str = "eq1_intent",
+                scene_area: float | None = None) -> int:
+    """The default level set (module docstring, "Level set"): the smallest N with D_N >= R_scene,
+    lowered until the top level holds at least N_avg VPLs in the scene (S_N <= A_scene / N_avg)."""
+    s0 = 4.0 * np.pi * (dnear_factor * scene_radius) ** 2 / n_avg
+    d0 = _reach_scale(reach, n_avg) * np.sqrt(s0)
+    n = 0 if d0 >= scene_radius else int(np.ceil(2.0 * np.log(scene_radius / d0) / np.log(mu) - 1e-9))
+    if scene_area is not None and scene_area > 0:
+        # fewest levels whose top level holds at most TOP_LEVEL_BUDGET N_avg VPLs in the scene
+        excess = scene_area / (TOP_LEVEL_BUDGET * n_avg * s0)
+        n = min(n, int(np.ceil(np.log(excess) / np.log(mu) - 1e-9)) if excess > 1.0 else 0)
+    return int(min(max(n, 0), MAX_LEVELS - 1))
 
 
 @dataclass(frozen=True)
@@ -49,17 +110,23 @@ class FlcLevels:
     scene_radius: float
     n_avg: float
     mu: float
-    levels: int            # N: levels 0..N
+    levels: int            # N: levels 0..N (-1: auto_levels)
     dnear_factor: float = 0.2
-    last_level_unbounded: bool = False
+    last_level_unbounded: bool = True
+    reach: str = "eq1_intent"
+    scene_area: float | None = None   # total surface area: bounds the automatic top level
 
     def __post_init__(self):
         if not (self.scene_radius > 0 and np.isfinite(self.scene_radius)):
             raise ValueError(f"flc: scene radius must be > 0, got {self.scene_radius}")
         if not self.mu > 1.0:
             raise ValueError(f"flc: mu must be > 1 (levels of increasing size), got {self.mu}")
+        _reach_scale(self.reach, self.n_avg)
+        if self.levels == -1:
+            object.__setattr__(self, "levels", auto_levels(self.scene_radius, self.n_avg, self.mu,
+                                                           self.dnear_factor, self.reach, self.scene_area))
         if not 0 <= self.levels < MAX_LEVELS:
-            raise ValueError(f"flc: levels N must be in [0, {MAX_LEVELS - 1}], got {self.levels}")
+            raise ValueError(f"flc: levels N must be -1 (auto) or in [0, {MAX_LEVELS - 1}], got {self.levels}")
 
     # ------------------------------------------------------------------ constants
     @property
@@ -83,8 +150,9 @@ class FlcLevels:
 
     @property
     def d(self) -> np.ndarray:
-        """Eq. 18: D_k = sqrt(S_0 mu^k) for k = 0..N, and D_{N+1} = D_N (N + 2 values)."""
-        d = np.sqrt(self.s)
+        """Influence distances D_0..D_N and D_{N+1} = D_N (N + 2 values): D_near mu^(k/2) for
+        eq1_intent, sqrt(S_k) for eq18_printed (module docstring, correction 3)."""
+        d = _reach_scale(self.reach, self.n_avg) * np.sqrt(self.s)
         return np.append(d, d[-1])
 
     @property
@@ -135,10 +203,10 @@ class FlcLevels:
         """Expected number of level-k VPLs whose f^k is non-zero at a receiver, weighted by f^k,
         under eq. 1's model of the surroundings (surface area within distance D of the receiver
         grows as 4 pi D^2, every emitter facing it): n_k = (1 / S_k) int f^k(D) d(4 pi D^2).
-        Sec. 5 asks for about the same number from every level; with D_k^2 = S_k the interior
-        levels get exactly the same, level 0 more (f^0 = 1 down to d = 0: 1.25x at mu = 5 to
-        3.5x at mu = 1.4) and the last level less (no falling ramp: 0.2x to 0.45x) unless it is
-        unbounded (then infinite)."""
+        Interior levels get the same count, proportional to D_k^2 / S_k: N_avg times a shape
+        factor of the hats for eq1_intent, 4 pi times it for eq18_printed (whatever N_avg);
+        level 0 more (f^0 = 1 down to d = 0), the last level less when bounded (no falling
+        ramp) and infinitely many when unbounded (f^N = 1 everywhere beyond D_N)."""
         nodes = self.d
         out = np.empty(self.levels + 1)
         for k in range(self.levels + 1):

@@ -1,96 +1,162 @@
 """`flc`: Forward Light Cuts (Laurent, Delalandre, de La Rivière, Boubekeur, EGSR 2016).
 
-One-bounce diffuse indirect lighting without indirect visibility, estimated without bias
-(with `last_level_unbounded`) from the many-lights sum of eq. 4,
+One-bounce diffuse indirect lighting without indirect visibility, estimated without bias from
+the many-lights sum of eq. 4 over the scene's surfaces,
 
     L_ML(x) = sum_t H(t, x, n_x) A(t),
     H = rho_x / pi * L_t(y_t -> x) <n_x, xy>+ <n_t, yx>+ / max(eps, |x - y_t|)^2,
     L_t(w) = rho_t E(t) 3/(2 pi) <n_t, w>+                                     (eq. 5, 6)
 
-by a stochastic multiscale cut computed forward, every frame, with no precomputation:
+by a stochastic multiscale cut computed forward, every frame, with no precomputation. E(t) is
+the shadowed direct irradiance at the VPL, its cosine taken against the interpolated shading
+normal there, and the side of that normal a receiver lies on picks which side's radiosity it
+sees (as Mitsuba's two-sided diffuse and `manylights`); the emission lobe <n_t, yx>, the support
+balls and the area use the face. A VPL lit on one side emits on that side.
 
-1. Alg. 2: every vertex carries a uint32 `v_rand` (set at load); a triangle's random value is
-   u_rand xor its three v_rand (u_rand changes every frame); u is its PCG hash in [0, 1).
+1. Alg. 2: every vertex carries a uint32 `v_rand` (set at load); a triangle's key is the xor
+   of its three v_rand; its level draw is the PCG hash of key xor u_rand (u_rand new every
+   frame). The interleaving tile and the VPL jitter use their own per-frame values (independent
+   streams of `frame.random_u32`).
 2. Alg. 1: S_0 = 4 pi D_near^2 / N_avg (eq. 1), S_k = S_0 mu^k (eq. 17), S_bar_k =
    1 / sum_{j<=k} 1/S_j; a triangle goes to the first level k with u < A / S_bar_k, else it is
    discarded. Triangles with A > S_bar_N are divergent.
 3. Regular pass (stage `regular`): one draw of the whole scene. Its geometry shader classifies
    each triangle, appends divergent ones to a storage buffer and atomically grows an indirect
-   draw command, and turns each kept regular triangle into one VPL at its centre (jittered over
-   the triangle in progressive mode) with the shadowed direct radiosity rho E of both sides
-   (two-sided surfaces, like `manylights`), emitted as a quad over the screen-space bound of
-   its support in one random interleaved-sampling tile. The fragment stage reads the GBuffer
-   and adds H S_k f^k(d) with d = |x - y| / |<n_t, (x - y)/|x - y|>| (eq. 10, 14).
+   draw command, and turns each kept regular triangle into one VPL, uniformly jittered over the
+   triangle (`jitter`; at the centroid when off), with the shadowed direct radiosity rho E of
+   both sides, emitted as a quad over the exact screen-space bound of its support (the ball on
+   each lit side, Mara & McGuire's tangent bound) in one random interleaved-sampling tile. The
+   fragment stage reads the GBuffer and adds H S_k f^k(d), d = |x - y| / |<n_t, (x - y)/|x - y|>|
+   (eq. 10, 14).
 4. Divergent pass (stage `divergent`): the buffer drawn with `render_indirect` (no CPU
    read-back) as patches through the tessellator, at the smallest uniform level whose largest
    piece is regular (measured once on the tessellator, `tessellation.py`); triangles that need
-   more than level 64 are pre-split into m^2 equal sub-patches when appended. A piece's random
-   value is u_rand xor the base triangle's v_rand xor the noise texture at its three vertices'
-   barycentric coordinates (Alg. 2, Fig. 8); then the same splat. Skipped (and recorded as
-   skipped) when the scene facts say no triangle is divergent, or with `divergent_pass` off
-   (divergent triangles are then dropped: Fig. 7 top).
+   more than level 64 are pre-split into m^2 equal sub-patches when appended. A piece's key is
+   the base triangle's v_rand xor the noise texture at its three vertices' barycentric
+   coordinates (Alg. 2, Fig. 8); then the same splat. Skipped (and recorded as skipped) when the
+   scene facts say no triangle is divergent, or with `divergent_pass` off (divergent triangles
+   are then dropped: Fig. 7 top). The command is reset by a GPU buffer copy and the pass waits
+   on a command + storage memory barrier only (no CPU upload, no full barrier in a frame).
 5. Stage `upscale_blur`: untile the 4^L tiles and a separable geometry-aware tent blur (each
    tile's samples linearly interpolated, every tile weighing the same), then rho_x / pi.
 
-A triangle lands in level k with probability A / S_k, and F^k = S_k f^k, so
-E[K] = sum_t H sum_k S_k f^k A / S_k = sum_t H A sum_k f^k: the estimator is unbiased wherever
-the f^k sum to 1. Interleaved sampling keeps that: a VPL splats into one of the T = 4^L tiles
-at random with weight T. Progressive mode averages F sub-frames (new u_rand, jittered VPLs)
-inside one render() and converges to `manylights` with `emission=flc` and the same jitter.
+Against which sum it is unbiased. A triangle (piece) lands in level k with probability A / S_k
+and then weighs F^k = S_k f^k, so E[K] = sum_t H A sum_k f^k: unbiased wherever the f^k sum to
+1, which with the last level unbounded (the default) is everywhere. With `jitter` (the default)
+each VPL is uniform over its triangle or tessellated piece, so a single frame's expectation is
+the integral of eq. 4 over every triangle: the limit of `manylights` with `emission=flc` and
+many `jitter_frames` (jittered `manylights`), not centroid `manylights` (one VPL at each whole
+triangle's centroid: divergent triangles are split here, so the sums differ). With `jitter`
+off a frame is unbiased only for the centroid sum over the pieces the divergent pass makes
+(a sum no `manylights` setting computes: +8% on cornell_spot at 64x48 against the jittered
+one). Interleaved sampling keeps the expectation (a VPL splats into one of T = 4^L tiles at
+random with weight T); the blur is the one spatial bias. With `last_level_unbounded` false
+(the paper's eq. 16 literally) pairs with d > D_N are cut (`analysis.energy_beyond_support`).
+Progressive mode averages F sub-frames inside one render(); for regular triangles its jitter
+is the same as `manylights`' jitter frame j, so the two converge together.
 
-Corrections to the paper (see `levels.py`):
+Corrections to the paper (details and derivations in `levels.py`):
 - eq. 3 prints P(t in L^k) = A / S_bar_k; by Alg. 1 that is the probability of levels 0..k.
   The level-k probability is A / S_k, which is what makes eq. 9 hold with F^k = S_k f^k.
 - eq. 16 prints f^0 = 1 on ]0, D_1], overlapping f^1's ramp on ]D_0, D_1] (sum > 1 there).
-  We use hats that sum to 1 on ]0, D_N]: f^0 = 1 up to D_0 and falls to 0 at D_1; f^k rises on
-  ]D_{k-1}, D_k] and falls on ]D_k, D_{k+1}] (D_{N+1} = D_N: f^N does not fall). Chosen because
-  it keeps the paper's nodes D_k = sqrt(S_k) (eq. 18), so that every interior level reaches a
-  receiver with the same expected number of VPLs (Sec. 5; `FlcLevels.expected_vpls_reaching`).
-- Beyond D_N every f^k is 0 (the paper's choice): far and grazing bounces are cut.
-  `last_level_unbounded` sets f^N = 1 beyond D_N for the exact estimator (every level-N VPL
-  then splats over the whole screen).
+  We use hats that sum to 1: f^0 = 1 up to D_0 and falls to 0 at D_1; f^k rises on
+  ]D_{k-1}, D_k] and falls on ]D_k, D_{k+1}]; f^N = 1 beyond D_N (unbounded, default).
+- eq. 18 prints D_k = sqrt(S_k): every level then reaches a receiver with a fixed handful of
+  VPLs (about 4 pi) whatever N_avg, and the reach D_N shrinks as N_avg grows (2.84, 1.42,
+  0.71 R_scene for N_avg 64, 256, 1024 at mu 4, N 5), against eq. 1's intent (N_avg VPLs within
+  D_near of a pixel) and Fig. 10 (N_avg "the approximate number of VPLs influencing every
+  pixel", time proportional to it). From eq. 1's model (surface within distance D: 4 pi D^2;
+  level k: one VPL per S_k) N_avg VPLs of every level reach a receiver when
+  4 pi D_k^2 / S_k = N_avg, i.e. D_k = D_near mu^(k/2) (`reach="eq1_intent"`, default; D_0 =
+  D_near). `reach="eq18_printed"` keeps the literal print for comparison.
+  `analysis.count_vpls_reaching` measures the count on a scene (4x N_avg: 3.7-4.1x the VPLs on
+  cornell_spot; the printed eq. 18 with the former defaults: 0.8x).
 
-Choosing parameters: the reach is D_N = dnear_factor R sqrt(4 pi / N_avg) mu^(N/2), so raising
-N_avg alone shrinks it (more energy cut) unless N or mu grows too. A level-k VPL stands for
-S_k of surface, so a lit region of area A_lit holds about A_lit / S_k level-k VPLs: when the
-light falls on a small patch and the receivers are far from it (d in the top levels), a frame
-rests on a handful of powerful VPLs and is very noisy (the paper's "spikes"); progressive
-mode removes that noise. `analysis.energy_beyond_support` measures the share cut beyond D_N.
+Documented rules (a user setting always wins):
+- Level set (`levels = -1`): N = min(ceil(log_mu (R_scene / D_0)^2), ceil(log_mu (A_scene /
+  (32 N_avg S_0)))), at least 0: the fewest levels whose unbounded top level holds at most
+  32 N_avg VPLs in the scene, and no more than the reach needs (D_N >= R_scene). A level-k VPL
+  stands for S_k of surface: each level added divides the top level's VPLs by mu and makes them
+  mu times more powerful, and a frame whose light comes from a small lit patch then rests on a
+  handful of them (the paper's "spikes"; with the paper's N = 5 the top level held under one lit
+  VPL on cornell_spot). Every lit top-level VPL lights the whole screen, so the budget bounds
+  the fill cost. Measured at 128 x 96, 6 seeds, n_avg 128: cornell_spot's per-seed spread of the
+  image mean is 9% with N = 2 or 1 and 2% with N = 0, hidden_bounce 30% (N = 1) and 7% (N = 0),
+  rooms 19% and 6%, at a similar splat cost. At the defaults N = 0 on every scene of the default
+  run, sibenik and conference, 1 on sponza (A_scene = 35 x 4 pi D_near^2).
+- Tiling (`tiling_level = -1`): L = floor(log4(W H / (64 x 48))), at least 0 (at most 5): tiles
+  of at least 64 x 48 px (3072 px). The paper's x64 tiling at 1280 x 720 (Table 1) has tiles of
+  160 x 90 px on a GPU with fill rate to spare; a fifth of that keeps FLC near `direct`'s frame
+  time on a CPU rasteriser while a tile still resolves the low-frequency bounce (issue 10's
+  counter-example, x64 at 128 x 96, had 16 x 12 px tiles). 1 at 128 x 96, 2 at 320 x 180, 4 at
+  1280 x 720. Measured at 320 x 180 with n_avg 128: FLC's own stages cost 0.27 to 0.42 of
+  `direct`'s frame on sponza, conference and highpoly_1m with L = 2, 0.34 to 0.53 with L = 1 at
+  half the N_avg. The blur radius follows (`blur_radius = -1`: 2^L - 1, every tile phase
+  weighing the same).
 
-Noise, not bias (measured on `cornell_spot`, 96x72, defaults with `last_level_unbounded` and 16
-progressive frames). The image mean of one render has a relative standard deviation of 18.6%
-over 512 seeds (`analysis.level_statistics` predicts 17.8% from the level noise alone): 95% of
-the image comes through levels 4 and 5 (d of 0.6 to 2.5 m in a 2 m box), and the spot's lit
-5 m^2 holds 3.4 level-4 and 0.84 level-5 VPLs per sub-frame (S_4 = 1.5 m^2, S_5 = 6 m^2). The
-error comes from a few powerful VPLs that each light much of the frame (4x4-block ratios
-spread by 23% per seed, correlated 0.57 between blocks) and is skewed (renders up to 1.55x).
-Over the 512 seeds the mean ratio to `manylights` (emission=flc,
-64 jitter frames) is 1.000 +- 0.008; seeds 0..3 happen to give 0.84, 0.93, 0.92, 0.89 (a mean
-of four seeds falls this low in 12% of draws). With one level (N = 0, every VPL over the whole
-screen) the same pipeline (spot falloff, shadowed two-sided E, jitter, tessellated pieces)
-matches `manylights` to 0.1% (1.001 +- 0.001). The spread falls as 1/sqrt(F) in progressive
-frames, or with a smaller top-level S_N: predicted 8.9% with N = 3, 6.3% with mu = 2 (16
-frames), at the price of larger unbounded last-level splats. The blur (`blur_radius`) is the
-one spatial bias: at 64x48 (tiles of 8x6 px, r = 7) 4x4-block means move by -2% to +8% against
-`manylights` while the image mean moves by +0.3%; `tiling_level` without blur adds none.
+Measured at the defaults, one frame (issue 10; shared 2-core llvmpipe machine under heavy load,
+so times are ratios within one run). Image mean of FLC's indirect over jittered `manylights`
+(flc lobe, 16 jitter frames), 8 seeds (0..7), 128 x 96, relative spread std/mean across seeds:
+cornell_spot 1.013 (3.4%), hidden_bounce 1.051 (6.9%), rooms/main 1.035 (6.4%), sphere_inside
+0.998 (3.7%) (`analysis.single_frame_study`, measured with L = 0 before the tiling rule moved to
+64 x 48 px tiles; tiling does not change the expectation). big_floor is the exception: its 80 m
+floor inflates R_scene, so S_0 = 3.2 m^2 and the floor's lit spot holds 0 to 3 VPLs a frame:
+at 128 x 96, 8 seeds, the mean ratio is 1.04 but the spread 110% (per-seed 0.0 to 3.2; reference
+on the floor cut into 0.5 m edges, `analysis.refined_scene`); at 64 x 48, 6 seeds, n_avg 512 (or
+`dnear_factor` 0.1, the same S_0) gives 1.06 and 38%.
+relMSE of `indirect` against the Mitsuba unshadowed reference (`gibench sweep`, mean over seeds
+0..7, 128 x 96), flc at n_avg 64 / 128 / 256 / 512 / 1024 against `direct`:
+cornell_spot 0.070 0.062 0.060 0.064 0.058 (direct 0.876), hidden_bounce 0.104 0.094 0.051
+0.051 0.047 (0.957), big_floor 0.546 0.344 0.141 0.092 0.075 (0.290), rooms/main 0.029 0.022
+0.019 11.06 2.78 (0.636), rooms/far 0.109 0.111 0.113 0.119 0.113 (0.969), sphere_inside 0.007
+0.007 0.006 0.005 0.005 (0.990). Two known failures at the defaults: big_floor (the few-VPL
+spread above: seeds 3 and 7 score 0.58 and 0.81) and single-pixel spikes of the 1/d^2 term
+(eps_rel 1e-4) when a jittered VPL lands next to a visible receiver (rooms/main seed 7 at n_avg
+512 and 1024: relMSE 88 and 22, the other seeds 0.01 to 0.05); the jittered `manylights` has
+the same singularity. Where the error stops falling with N_avg it is FLC's emission lobe (eq. 6,
+<n_t, w> 3/(2 pi) instead of Lambert's 1/pi) and the missing indirect shadows, not noise: against
+jittered `manylights` with the flc lobe the error falls with N_avg (test_flc_defaults.py).
+Frame time grows with N_avg once the splat dominates (median over the seeds: sphere_inside 180,
+203, 331, 656, 1144 ms, about 1.0 ms per unit of N_avg; cornell_spot 74, 90, 152, 236, 352 ms,
+0.29 ms per unit; direct 137 and 39 ms). At 320 x 180 (one `gibench run`, 2 frames), frame time
+over `direct`'s: highpoly_1m 1.47, sponza 1.30, conference 1.52 (FLC's own stages: 0.27, 0.23,
+0.40 of direct's frame; a second run with 3 frames: 0.42, 0.27, 0.37), and `dss` / `flc`: 17.5,
+3.6, 7.2.
+Not yet measured: the error at 320 x 180 and on sibenik (no Mitsuba reference rendered at that
+size here); the same sweep with `--res 320x180 --scenes sponza,sibenik,conference` gives it.
+Commands (the 8-seed study is one sweep per seed; the sweep turns n_avg 64 .. 1024):
 
-| parameter             | default | range        | meaning                                                       |
-|-----------------------|---------|--------------|---------------------------------------------------------------|
-| n_avg                 | 256     | 8 .. 4096    | N_avg of eq. 1: VPLs per pixel and level (quality)            |
-| mu                    | 4.0     | 1.05 .. 16   | level size ratio S_k = S_0 mu^k (paper: 1.4 .. 5)             |
-| levels                | 5       | 0 .. 15      | N: levels 0..N (paper Fig. 10: 5)                             |
-| dnear_factor          | 0.2     | 1e-3 .. 10   | D_near / R_scene (eq. 1)                                      |
-| eps_rel               | 1e-4    | 1e-7 .. 1    | eps of d_i = max(eps, |x - y|), relative to R_scene           |
-| tiling_level          | 3       | 0 .. 5       | L: 4^L interleaved tiles (paper Table 1: x64) (quality)       |
-| blur_radius           | -1      | -1 .. 32     | tent blur radius r in pixels; -1: 2^L - 1; 0: off             |
-| blur_depth_threshold  | 0.05    | 0 .. 10      | tangent-plane distance / camera distance for a blur neighbour |
-| blur_normal_threshold | 0.9     | -1 .. 1      | min cosine between normals for a blur neighbour               |
-| progressive_frames    | 1       | 1 .. 4096    | F sub-frames averaged in one render (jittered VPLs if F > 1)  |
-| last_level_unbounded  | false   |              | f^N = 1 beyond D_N (exact, unbiased; slower)                  |
-| divergent_pass        | true    |              | tessellate divergent triangles (off: they are dropped)        |
+    for s in 0 1 2 3 4 5 6 7; do
+      gibench sweep --scenes cornell_spot,hidden_bounce,big_floor,rooms,sphere_inside \
+          --methods direct,flc --res 128x96 --frames 2 --seed $s --out runs/flc_128_seed$s
+    done
+    gibench run --scenes highpoly_1m,sponza,conference --methods direct,flc,dss --res 320x180 \
+        --frames 2 --seed 0 --no-reference --out runs/flc_320_time
+    python -c "from bench.gl.context import create_context; from bench.corpus import load_scene; \
+        from methods.flc.analysis import single_frame_study as s; \
+        print(s(create_context(), load_scene('cornell_spot'), 'main', 128, 96))"
+
+| parameter             | default    | range        | meaning                                                     |
+|-----------------------|------------|--------------|-------------------------------------------------------------|
+| n_avg                 | 128        | 8 .. 4096    | N_avg of eq. 1: VPLs reaching a pixel per level (quality)   |
+| mu                    | 4.0        | 1.05 .. 16   | level size ratio S_k = S_0 mu^k (paper: 1.4 .. 5)           |
+| levels                | -1         | -1 .. 15     | N: levels 0..N; -1: the level-set rule above                |
+| reach                 | eq1_intent | eq1_intent, eq18_printed | D_k = D_near mu^(k/2), or sqrt(S_k) as printed  |
+| dnear_factor          | 0.2        | 1e-3 .. 10   | D_near / R_scene (eq. 1)                                    |
+| eps_rel               | 1e-4       | 1e-7 .. 1    | eps of d_i = max(eps, |x - y|), relative to R_scene         |
+| tiling_level          | -1         | -1 .. 5      | L: 4^L interleaved tiles; -1: the tiling rule above         |
+| blur_radius           | -1         | -1 .. 32     | tent blur radius r in pixels; -1: 2^L - 1; 0: off           |
+| blur_depth_threshold  | 0.05       | 0 .. 10      | tangent-plane distance / camera distance for a blur neighbour |
+| blur_normal_threshold | 0.9        | -1 .. 1      | min cosine between normals for a blur neighbour             |
+| progressive_frames    | 1          | 1 .. 4096    | F sub-frames averaged in one render (jittered VPLs)         |
+| jitter                | true       |              | VPLs jittered over their (sub-)triangle (false: centroids)  |
+| last_level_unbounded  | true       |              | f^N = 1 beyond D_N: unbiased (false: far field cut)         |
+| divergent_pass        | true       |              | tessellate divergent triangles (off: they are dropped)      |
 
 Stages: `regular`, `divergent`, `upscale_blur` (after the shared `gbuffer_shadow` and
-`direct_light`); the paper's "indirect" total is their sum.
+`direct_light`); the paper's "indirect" total is their sum. Each row records `extra.S0_m2`,
+`S_bar_N_m2`, `D_N_m`, `levels`, `tiling_level`, `blur_radius`, `divergent_triangles`,
+`divergent_patch_vertices`.
 """
 from __future__ import annotations
 
@@ -103,16 +169,31 @@ from bench.gl import load_program, set_uniforms
 from bench.gl.context import park
 from bench.method import FrameOutput, MethodBase, Param, SkipRow
 
-from .levels import FlcLevels, presplit_count
+from .levels import REACHES, FlcLevels, presplit_count
 from .tessellation import MAX_TESS_LEVEL, measure_fmax
 
 SHADERS = Path(__file__).parent / "shaders"
 BINDINGS = {"BINDING_DIVERGENT_VERTICES": 3, "BINDING_DIVERGENT_COMMAND": 4}
 NOISE_SIZE = 1024
-DIVERGENT_VERTEX_BYTES = 32
+DIVERGENT_VERTEX_BYTES = 48
 MAX_DIVERGENT_BYTES = 128 * 1024 * 1024   # GL_MAX_SHADER_STORAGE_BLOCK_SIZE guaranteed on llvmpipe
 CPU_MARGIN = 1e-3  # float64 facts vs float32 GPU areas: borderline triangles counted as divergent
 RESET_COMMAND = np.array([0, 1, 0, 0, 0, 0, 0, 0], dtype=np.uint32).tobytes()
+# Random streams of frame.random_u32: stream j is sub-frame j's VPL jitter (as `manylights`'
+# jitter frame j); the level draw (Alg. 2's u_rand) and the tile draw have their own.
+STREAM_LEVEL, STREAM_TILE = 1 << 20, 2 << 20
+# glMemoryBarrier bits: the appended patches are read as shader storage, the command as an indirect draw.
+GL_COMMAND_BARRIER_BIT, GL_SHADER_STORAGE_BARRIER_BIT = 0x00000040, 0x00002000
+# Automatic tiling: tiles of at least 64 x 48 px (see the manual's tiling rule; the paper's are
+# 160 x 90 px: x64 at 1280 x 720, Table 1, on a GPU with the fill rate for it).
+MIN_TILE_PIXELS = 64 * 48
+
+
+def auto_tiling_level(width: int, height: int) -> int:
+    """The largest L in 0..5 whose 4^L tiles hold at least 64 x 48 px each:
+    L = floor(log4(W H / 3072)), 0 below 128 x 96."""
+    ratio = width * height / MIN_TILE_PIXELS
+    return int(min(5, np.floor(np.log(ratio) / np.log(4.0) + 1e-9))) if ratio >= 4.0 else 0
 
 
 class ForwardLightCuts(MethodBase):
@@ -121,19 +202,23 @@ class ForwardLightCuts(MethodBase):
     stages = ("regular", "divergent", "upscale_blur")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
     params = {
-        "n_avg": Param(256, "N_avg of eq. 1: about how many VPLs light a pixel per level", 8, 4096,
+        "n_avg": Param(128, "N_avg of eq. 1: about how many VPLs reach a pixel per level", 8, 4096,
                        quality=True, sweep=(64, 128, 256, 512, 1024)),
         "mu": Param(4.0, "level size ratio mu of S_k = S_0 mu^k (paper: 1.4 .. 5)", 1.05, 16.0),
-        "levels": Param(5, "N: levels 0..N", 0, 15),
+        "levels": Param(-1, "N: levels 0..N (-1: the smallest N with D_N >= R_scene)", -1, 15),
+        "reach": Param("eq1_intent", "influence distances D_k: eq1_intent D_near mu^(k/2) (N_avg VPLs per level), "
+                       "eq18_printed sqrt(S_k) (the printed eq. 18)", choices=REACHES),
         "dnear_factor": Param(0.2, "D_near / R_scene in eq. 1", 1e-3, 10.0),
         "eps_rel": Param(1e-4, "eps of d_i = max(eps, |x - y|), relative to the scene radius", 1e-7, 1.0),
-        "tiling_level": Param(3, "L: the viewport is split into 4^L interleaved tiles", 0, 5,
-                              quality=True, sweep=(0, 1, 2, 3)),
+        "tiling_level": Param(-1, "L: the viewport is split into 4^L interleaved tiles (-1: from the resolution, "
+                              "tiles of at least 64 x 48 px each)", -1, 5),
         "blur_radius": Param(-1, "tent blur radius in pixels (-1: 2^L - 1, i.e. 0 when L = 0; 0: no blur)", -1, 32),
         "blur_depth_threshold": Param(0.05, "max tangent-plane distance of a blur neighbour / camera distance", 0.0, 10.0),
         "blur_normal_threshold": Param(0.9, "min cosine between the normals of blur neighbours", -1.0, 1.0),
         "progressive_frames": Param(1, "sub-frames averaged in one render (new u_rand, jittered VPLs)", 1, 4096),
-        "last_level_unbounded": Param(False, "f^N = 1 beyond D_N: exact (unbiased) but every level-N VPL covers the screen"),
+        "jitter": Param(True, "VPL uniformly jittered over its (sub-)triangle in every (sub-)frame (false: at the "
+                        "centroid when progressive_frames = 1, the paper's real-time mode)"),
+        "last_level_unbounded": Param(True, "f^N = 1 beyond D_N: unbiased (false: every f^k is 0 beyond D_N, far field cut)"),
         "divergent_pass": Param(True, "tessellate divergent triangles (false: drop them)"),
     }
 
@@ -143,10 +228,14 @@ class ForwardLightCuts(MethodBase):
         self.ctx = ctx = gpu.ctx
         self.levels = FlcLevels(scene_radius=facts.scene_radius, n_avg=float(params["n_avg"]), mu=params["mu"],
                                 levels=params["levels"], dnear_factor=params["dnear_factor"],
-                                last_level_unbounded=params["last_level_unbounded"])
+                                last_level_unbounded=params["last_level_unbounded"], reach=params["reach"],
+                                scene_area=float(facts.total_area_m2))
         lv = self.levels
         self.eps = params["eps_rel"] * facts.scene_radius
         L = params["tiling_level"]
+        if L < 0:
+            L = auto_tiling_level(view.width, view.height)
+        self.tiling_level = L
         self.tiles_per_axis = 1 << L
         self.tile_size = (-(-view.width // self.tiles_per_axis), -(-view.height // self.tiles_per_axis))
         radius = params["blur_radius"]
@@ -177,10 +266,12 @@ class ForwardLightCuts(MethodBase):
                        NOISE_SIZE=NOISE_SIZE)
         self.regular = load_program(ctx, SHADERS / "splat_regular.glsl", defines)
         self.regular_vao = ctx.vertex_array(self.regular, [(gpu.vbo_position, "3f", "in_position"),
+                                                           (gpu.vbo_normal, "3f", "in_normal"),
                                                            (gpu.vbo_random, "u", "in_vrand")],
                                             index_buffer=gpu.ibo, index_element_size=4)
         self.divergent_vertices = ctx.buffer(reserve=max(capacity, 1) * DIVERGENT_VERTEX_BYTES)
         self.command = ctx.buffer(RESET_COMMAND)
+        self.command_reset = ctx.buffer(RESET_COMMAND)  # copied on the GPU: no CPU upload in a frame
         self.divergent = self.divergent_vao = self.noise = None
         if self.run_divergent:
             self.divergent = load_program(ctx, SHADERS / "splat_divergent.glsl", defines)
@@ -206,10 +297,11 @@ class ForwardLightCuts(MethodBase):
         """The derived constants of this setup (for the record and the tests)."""
         lv = self.levels
         return {"S0_m2": lv.s0, "S_bar_N_m2": lv.divergent_area, "D_N_m": float(lv.d[lv.levels]),
+                "levels": int(lv.levels), "tiling_level": int(self.tiling_level), "blur_radius": int(self.blur_radius),
                 "divergent_triangles": self.divergent_count, "divergent_patch_vertices": self.divergent_capacity}
 
     # ------------------------------------------------------------------ frame (timed)
-    def _bind_splat(self, prog, frame, u_rand: int, unit0: int = 0) -> int:
+    def _bind_splat(self, prog, frame, j: int, unit0: int = 0) -> int:
         passes, gpu = frame.passes, frame.gpu
         unit = passes.gbuffer.bind(prog, unit0)
         unit = passes.shadows.bind(prog, unit)
@@ -217,7 +309,11 @@ class ForwardLightCuts(MethodBase):
         self.divergent_vertices.bind_to_storage_buffer(BINDINGS["BINDING_DIVERGENT_VERTICES"])
         self.command.bind_to_storage_buffer(BINDINGS["BINDING_DIVERGENT_COMMAND"])
         frames = self.params["progressive_frames"]
-        set_uniforms(prog, u_view_proj=frame.view.view_proj, u_rand=u_rand, u_jitter=frames > 1,
+        view = frame.view
+        set_uniforms(prog, u_view=view.view, u_proj_scale=(float(view.proj[0, 0]), float(view.proj[1, 1])),
+                     u_near=float(view.near), u_rand=frame.random_u32(STREAM_LEVEL + j),
+                     u_rand_tile=frame.random_u32(STREAM_TILE + j), u_rand_jitter=frame.random_u32(j),
+                     u_jitter=bool(self.params["jitter"]) or frames > 1,
                      u_screen=(frame.width, frame.height), u_tiles_per_axis=self.tiles_per_axis,
                      u_tile_size=self.tile_size, u_weight=float(self.tiles_per_axis ** 2) / frames,
                      u_eps=float(self.eps), u_light_count=gpu.light_count)
@@ -237,18 +333,18 @@ class ForwardLightCuts(MethodBase):
         ctx.viewport = (0, 0, self.accum.width, self.accum.height)
         self.accum_fbo.clear(0.0, 0.0, 0.0, 0.0)
         for j in range(self.params["progressive_frames"]):
-            u_rand = frame.random_u32(j)
             with prof.stage("regular"):
                 if self.run_divergent:
-                    self.command.write(RESET_COMMAND)
+                    ctx.copy_buffer(self.command, self.command_reset)
                 self._splat_state()
-                self._bind_splat(self.regular, frame, u_rand)
+                self._bind_splat(self.regular, frame, j)
                 self.regular_vao.render(moderngl.TRIANGLES)
             if self.run_divergent:
                 with prof.stage("divergent"):
-                    ctx.memory_barrier()  # the appended patches and the command are read next
+                    # the appended patches (storage) and the command (indirect draw) are read next
+                    ctx.memory_barrier(GL_COMMAND_BARRIER_BIT | GL_SHADER_STORAGE_BARRIER_BIT)
                     self._splat_state()
-                    unit = self._bind_splat(self.divergent, frame, u_rand)
+                    unit = self._bind_splat(self.divergent, frame, j)
                     self.noise.use(unit)
                     self.divergent["u_noise"].value = unit
                     ctx.patch_vertices = 3
@@ -285,7 +381,7 @@ class ForwardLightCuts(MethodBase):
             return
         park(self.ctx)
         for name in ("accum_fbo", "blurred_fbo", "indirect_fbo", "accum", "blurred", "indirect", "resolve_vao",
-                     "resolve", "noise", "divergent_vao", "divergent", "command", "divergent_vertices",
+                     "resolve", "noise", "divergent_vao", "divergent", "command", "command_reset", "divergent_vertices",
                      "regular_vao", "regular"):
             obj = getattr(self, name, None)
             if obj is not None:

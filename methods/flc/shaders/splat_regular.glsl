@@ -7,11 +7,14 @@
 
 #if defined VERTEX_SHADER
 in vec3 in_position;
+in vec3 in_normal;
 in uint in_vrand;
 out vec3 v_position;
+out vec3 v_normal;
 out uint v_rand;
 void main() {
     v_position = in_position;
+    v_normal = in_normal;
     v_rand = in_vrand;
     gl_Position = vec4(in_position, 1.0);
 }
@@ -21,12 +24,18 @@ void main() {
 layout(triangles) in;
 layout(triangle_strip, max_vertices = 4) out;
 in vec3 v_position[];
+in vec3 v_normal[];
 in uint v_rand[];
+
+vec3 shading_normal(vec3 bary) {  // interpolated vertex normals (normalised by the caller)
+    return bary.x * v_normal[0] + bary.y * v_normal[1] + bary.z * v_normal[2];
+}
 
 #if DIVERGENT_APPEND
 void store_vertex(uint o, vec3 a, vec3 e1, vec3 e2, vec2 bary, uint tri, uint vr) {
     divergent_vertices[o].position_tri = vec4(a + bary.x * e1 + bary.y * e2, uintBitsToFloat(tri));
     divergent_vertices[o].bary_rand = vec4(bary, uintBitsToFloat(vr), 0.0);
+    divergent_vertices[o].normal = vec4(shading_normal(vec3(1.0 - bary.x - bary.y, bary)), 0.0);
 }
 
 // m^2 equal sub-patches (m = 1 unless the top tessellation level is not enough), 3 vertices each.
@@ -69,14 +78,15 @@ void main() {
 #endif
         return;
     }
-    vec3 y = (a + b + c) / 3.0;
+    vec3 bary = vec3(1.0 / 3.0);
     if (u_jitter) {
-        // The same jitter as `manylights` (same u_rand, same triangle index): uniform on the triangle.
-        uint h = hash_u32(u_rand ^ hash_u32(tri * 2654435761u));
+        // The same jitter as `manylights` (same stream value, same triangle index): uniform on the triangle.
+        uint h = hash_u32(u_rand_jitter ^ hash_u32(tri * 2654435761u));
         float u1 = u32_to_unit(h), u2 = u32_to_unit(hash_u32(h ^ 0x9E3779B9u));
         float su = sqrt(u1);
-        y = (1.0 - su) * a + su * (1.0 - u2) * b + su * u2 * c;
+        bary = vec3(1.0 - su, su * (1.0 - u2), su * u2);
     }
-    flc_splat_triangle(a, b, c, area, u_rand ^ vr, tri, y);
+    vec3 y = bary.x * a + bary.y * b + bary.z * c;
+    flc_splat_triangle(a, b, c, area, vr, tri, y, shading_normal(bary));
 }
 #endif

@@ -9,8 +9,9 @@
 #include "shadow.glsl"
 #include "partition.glsl"
 
-uniform mat4 u_view_proj;
-uniform uint u_rand;           // per (sub-)frame random value (Alg. 2)
+uniform uint u_rand;           // per (sub-)frame random value of the level draw (Alg. 2)
+uniform uint u_rand_tile;      // independent stream: the interleaved-sampling tile of a VPL
+uniform uint u_rand_jitter;    // independent stream: the VPL position (same as `manylights`)
 uniform bool u_jitter;         // progressive mode: VPL jittered uniformly over its triangle
 uniform ivec2 u_screen;        // full-resolution W, H
 uniform int u_tiles_per_axis;  // 2^L: 4^L interleaved tiles
@@ -23,6 +24,7 @@ uniform float u_eps;           // d_i = max(eps, |x - y|) in H
 struct DivergentVertex {
     vec4 position_tri;  // xyz position (re-centred), w triangle index (uint bits)
     vec4 bary_rand;     // xy barycentric (beta, gamma) in the parent triangle, z xor of the parent's v_rand (uint bits)
+    vec4 normal;        // xyz the parent's shading normal interpolated at this vertex (not normalised)
 };
 layout(std430, binding = BINDING_DIVERGENT_VERTICES) buffer DivergentBlock { DivergentVertex divergent_vertices[]; };
 // DrawArraysIndirect command (5 uint32 as moderngl's render_indirect reads) + reservation counter.
@@ -32,16 +34,18 @@ layout(std430, binding = BINDING_DIVERGENT_COMMAND) buffer DivergentCommand {
 
 float unit_from_u32(uint h) { return float(h) * (1.0 / 4294967296.0); }  // [0, 1], exact for small values
 
-// Shadowed direct irradiance on both sides of a surface with unit normal n, as
-// direct_irradiance(p, n, n, true) and direct_irradiance(p, -n, -n, true) (what `manylights`
-// computes), with one light evaluation and one shadow lookup per light: a light reaches one side.
-void direct_irradiance_two_sided(vec3 p, vec3 n, out vec3 front, out vec3 back) {
+// Shadowed direct irradiance on both sides of a surface with unit geometric normal n and unit
+// shading normal ns (oriented into n's hemisphere), as direct_irradiance(p, ns, n, true) and
+// direct_irradiance(p, -ns, -n, true): the incident cosine against the shading normal (as
+// Mitsuba and `manylights`), the shadow-map offset along the geometric side; one light
+// evaluation and one shadow lookup per light, since a light reaches one side.
+void direct_irradiance_two_sided(vec3 p, vec3 n, vec3 ns, out vec3 front, out vec3 back) {
     front = vec3(0.0);
     back = vec3(0.0);
     for (int i = 0; i < u_light_count; ++i) {
         vec3 wi; float dist;
         vec3 incident = light_incident(i, p, wi, dist);
-        float c = dot(n, wi);
+        float c = dot(ns, wi);
         if (c == 0.0 || all(equal(incident, vec3(0.0)))) continue;
         vec3 side = c > 0.0 ? n : -n;
         vec3 e = incident * abs(c) * shadow_visibility(i, p, side);
@@ -50,47 +54,76 @@ void direct_irradiance_two_sided(vec3 p, vec3 n, out vec3 front, out vec3 back) 
 }
 
 #if defined GEOMETRY_SHADER
+uniform mat4 u_view;           // re-centred world -> view space (the camera looks down -z)
+uniform vec2 u_proj_scale;     // P[0][0], P[1][1] of the symmetric perspective projection
+uniform float u_near;          // near plane distance
+
+// NDC bound of the projection of a sphere (centre c_world, radius r): the tangent lines from the
+// eye in the x-z and y-z planes (Mara & McGuire 2013, "2D polyhedral bounds of a clipped,
+// perspective-projected 3D sphere"), merged into lo / hi. Returns 0 when the sphere lies behind
+// the near plane, 2 when it crosses it (the caller then takes the whole screen), 1 otherwise.
+int sphere_ndc_bound(vec3 c_world, float r, inout vec2 lo, inout vec2 hi) {
+    vec3 c = (u_view * vec4(c_world, 1.0)).xyz;
+    if (c.z - r >= -u_near) return 0;
+    if (c.z + r >= -u_near) return 2;
+    for (int axis = 0; axis < 2; ++axis) {
+        vec2 cc = vec2(c[axis], c.z);
+        float len = length(cc);
+        vec2 v = vec2(sqrt(max(dot(cc, cc) - r * r, 0.0)), r) / len;   // cos, sin of the tangent angle
+        vec2 b0 = v.x * vec2(v.x * cc.x + v.y * cc.y, -v.y * cc.x + v.x * cc.y);
+        vec2 b1 = v.x * vec2(v.x * cc.x - v.y * cc.y, v.y * cc.x + v.x * cc.y);
+        float s0 = u_proj_scale[axis] * b0.x / -b0.y, s1 = u_proj_scale[axis] * b1.x / -b1.y;
+        lo[axis] = min(lo[axis], min(s0, s1));
+        hi[axis] = max(hi[axis], max(s0, s1));
+    }
+    return 1;
+}
+
 flat out vec3 g_y;
 flat out vec3 g_n;
-flat out vec3 g_front;      // rho E on the side +n
-flat out vec3 g_back;       // rho E on the side -n
+flat out vec3 g_ns;
+flat out vec3 g_front;      // rho E on the side +ns (ns oriented into n's hemisphere)
+flat out vec3 g_back;       // rho E on the side -ns
 flat out float g_weight;    // S_k * tiles / frames
 flat out int g_level;
 
-// Alg. 1 + eq. 6 + splat. `r` is the (sub-)triangle's random value (Alg. 2), y the VPL centre.
-void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint r, uint tri, vec3 y) {
-    uint h = hash_u32(r);
+// Alg. 1 + eq. 6 + splat. `key` is the (sub-)triangle's xor of per-vertex random values (Alg. 2,
+// without u_rand), y the VPL centre, ns_raw the shading normal interpolated at y.
+void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint key, uint tri, vec3 y, vec3 ns_raw) {
+    uint h = hash_u32(u_rand ^ key);   // REGULARRAND / DIVERGENTRAND of Alg. 2
     int level = flc_level(unit_from_u32(h), area);
     if (level < 0) return;
     vec3 n = normalize(cross(b - a, c - a));
+    float ns_len = length(ns_raw);
+    vec3 ns = ns_len > 0.0 ? ns_raw / ns_len : n;
+    if (dot(ns, n) < 0.0) ns = -ns;
     vec3 rho = triangle_albedo[tri].rgb;
     vec3 front, back;
-    direct_irradiance_two_sided(y, n, front, back);
+    direct_irradiance_two_sided(y, n, ns, front, back);
     front *= rho;
     back *= rho;
     if (all(equal(front + back, vec3(0.0)))) return;  // an unlit VPL adds nothing
 
     // Screen-space bound of the support {x : |x - y| / |<n, (x - y)/|x - y|>| <= D}: the two
-    // balls of diameter D tangent to the triangle's plane at y (two-sided emission).
+    // balls of diameter D tangent to the triangle's plane at y (two-sided emission), only the
+    // ball on the lit side when the other side is dark; each ball's exact projected bound.
     float support = flc_support(level);
     bool full = support < 0.0;
     vec2 lo = vec2(1.0e30), hi = vec2(-1.0e30);
     if (!full) {
         float r_ball = 0.5 * support;
-        vec3 ext = abs(n) * r_ball + vec3(r_ball);
-        // corners of the box y +- ext in clip space: M y +- M_x ext.x +- M_y ext.y +- M_z ext.z
-        vec4 centre = u_view_proj * vec4(y, 1.0);
-        vec4 ax = u_view_proj[0] * ext.x, ay = u_view_proj[1] * ext.y, az = u_view_proj[2] * ext.z;
-        int behind = 0;
-        for (int i = 0; i < 8; ++i) {
-            vec4 clip = centre + ((i & 1) != 0 ? ax : -ax) + ((i & 2) != 0 ? ay : -ay) + ((i & 4) != 0 ? az : -az);
-            if (clip.w <= 0.0) { ++behind; continue; }
-            vec2 ndc = clip.xy / clip.w;
-            lo = min(lo, ndc);
-            hi = max(hi, ndc);
+        bool front_lit = any(greaterThan(front, vec3(0.0))), back_lit = any(greaterThan(back, vec3(0.0)));
+        // one ball only when flat shaded: otherwise the side of ns that picks the radiosity
+        // (fragment stage) and the side of n that bounds the ball differ in a thin wedge
+        if (dot(ns, n) < 0.999999) front_lit = back_lit = true;
+        int visible = 0;
+        for (int side = 0; side < 2; ++side) {
+            if (side == 0 ? !front_lit : !back_lit) continue;
+            int b = sphere_ndc_bound(y + (side == 0 ? n : -n) * r_ball, r_ball, lo, hi);
+            if (b == 2) full = true;
+            visible += b;
         }
-        if (behind == 8) return;
-        if (behind > 0) full = true;
+        if (visible == 0) return;   // the lit balls are behind the camera
     }
     if (full) { lo = vec2(-1.0); hi = vec2(1.0); }
     lo = max(lo, vec2(-1.0));
@@ -101,7 +134,7 @@ void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint r, uint tri, ve
 
     // Interleaved sampling: one random tile; tile pixel i stands for full-resolution pixel phase + P i.
     int P = u_tiles_per_axis;
-    uint tile = hash_u32(h ^ 0x85EBCA6Bu) % uint(P * P);
+    uint tile = hash_u32(u_rand_tile ^ key) % uint(P * P);
     ivec2 phase = ivec2(int(tile) % P, int(tile) / P);
     ivec2 i0 = (p0 - phase + (P - 1)) / P;                           // ceil, numerator >= 0
     ivec2 i1 = ivec2(floor(vec2(p1 - 1 - phase) / float(P)));        // floor
@@ -115,6 +148,7 @@ void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint r, uint tri, ve
     for (int v = 0; v < 4; ++v) {
         g_y = y;
         g_n = n;
+        g_ns = ns;
         g_front = front;
         g_back = back;
         g_weight = flc_s[level] * u_weight;
@@ -131,6 +165,7 @@ uniform sampler2D u_gbuffer_position;
 uniform sampler2D u_gbuffer_normal;
 flat in vec3 g_y;
 flat in vec3 g_n;
+flat in vec3 g_ns;
 flat in vec3 g_front;
 flat in vec3 g_back;
 flat in float g_weight;
@@ -155,7 +190,9 @@ void main() {
     if (c <= 0.0) discard;
     float f = flc_partition(g_level, dist / c); // eq. 14: d = |x - y| / <n_t, (x - y)/|x - y|>
     if (f <= 0.0) discard;
-    vec3 radiosity = cos_y > 0.0 ? g_front : g_back;
+    // the side of the shading normal x is on picks the radiosity (Mitsuba's twosided diffuse, as
+    // `manylights`); the geometric term's cosine is against the face normal
+    vec3 radiosity = dot(g_ns, w) < 0.0 ? g_front : g_back;
     float dc = max(u_eps, dist);
     // rho_t E 3/(2 pi) c (eq. 6) * cos_x c / d_i^2 (eq. 5 without rho_x / pi) * S_k f^k (eq. 10)
     out_sum = vec4(radiosity * (1.5 * INV_PI * c * c * cos_x / (dc * dc) * f * g_weight), 0.0);
