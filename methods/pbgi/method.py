@@ -348,20 +348,6 @@ class TextureSpacePBGI(MethodBase):
         self.lm_vao.render(moderngl.TRIANGLES)
         ctx.disable(moderngl.BLEND)
 
-    def _render_lightmap_gbuffer(self, gpu) -> None:
-        ctx = self.ctx
-        self.lm_fbo.use()
-        ctx.viewport = (0, 0, self.resolution, self.resolution)
-        self.lm_fbo.clear(0.0, 0.0, 0.0, 0.0)
-        ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        ctx.enable(moderngl.BLEND)   # pieces of surface in a texel add up
-        ctx.blend_func = moderngl.ONE, moderngl.ONE
-        gpu.bind_scene_buffers()
-        self.triangles.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_TRIANGLES"])
-        set_uniforms(self.lm_program, u_lightmap_size=float(self.resolution))
-        self.lm_vao.render(moderngl.TRIANGLES)
-        ctx.disable(moderngl.BLEND)
-
     # ------------------------------------------------------------------ render (timed)
     def _build_surfels(self, gpu, passes, bounce: int) -> None:
         """Surfels of `bounce`: radiosity rho E of the direct light (bounce 0) or of the last
