@@ -98,7 +98,8 @@ def test_skipped_rows(tmp_path):
     assert status["manylights"].startswith("skipped:") and runner.counts["skipped"] == 1
 
 
-def test_interrupted_run_resumes(tmp_path, monkeypatch):
+def interrupt_the_second_row(monkeypatch):
+    """Patch the runner so that its second row raises KeyboardInterrupt; returns the real _run_row."""
     from bench import runner as runner_mod
     calls = {"n": 0}
     real = runner_mod.Runner._run_row
@@ -110,6 +111,12 @@ def test_interrupted_run_resumes(tmp_path, monkeypatch):
         return real(self, *a, **k)
 
     monkeypatch.setattr(runner_mod.Runner, "_run_row", interrupt_second)
+    return real
+
+
+def test_interrupted_run_resumes(tmp_path, monkeypatch):
+    from bench import runner as runner_mod
+    real = interrupt_the_second_row(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         run(cfg(tmp_path, out="r"), log=lambda m: None)
     assert len(pd.read_csv(tmp_path / "r/results.csv")) == 1  # the finished row was saved
@@ -142,16 +149,7 @@ def test_interrupted_forced_run_resumes(tmp_path, monkeypatch):
     """--force re-renders, but an interrupted forced run resumes like any other."""
     from bench import runner as runner_mod
     run(cfg(tmp_path, out="f"), log=lambda m: None)
-    calls = {"n": 0}
-    real = runner_mod.Runner._run_row
-
-    def interrupt_second(self, *a, **k):
-        calls["n"] += 1
-        if calls["n"] == 2:
-            raise KeyboardInterrupt
-        return real(self, *a, **k)
-
-    monkeypatch.setattr(runner_mod.Runner, "_run_row", interrupt_second)
+    real = interrupt_the_second_row(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         run(cfg(tmp_path, out="f", force=True), log=lambda m: None)
     monkeypatch.setattr(runner_mod.Runner, "_run_row", real)

@@ -25,25 +25,8 @@ def rel_mse(a, b, mask=None):
 
 def read_surfels(ctx, scene, params):
     """Run prepare + one frame by hand and read the surfel buffer back: (N, 20) float32."""
-    facts = compute_facts(scene)
-    gpu = GpuScene(ctx, scene, facts=facts)
-    view = gpu.view("main", W, H)
-    passes = SharedPasses(gpu, view, DeepScreenSpace.needs)
-    method = DeepScreenSpace()
-    try:
-        method.prepare(gpu, scene, facts, resolve_params(DeepScreenSpace, params), view)
-        prof = StageProfiler(ctx, passes.stages + DeepScreenSpace.stages)
-        passes.render(prof)
-        method.render(Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=0, seed=0), prof)
-        ctx.finish()
-        check_gl(ctx, "dss frame")
-        n = method.surfel_count
-        data = np.frombuffer(method.surfels.read(n * SURFEL_BYTES), dtype=np.float32).reshape(n, SURFEL_BYTES // 4).copy()
-        return data, method.patch_count, gpu.origin
-    finally:
-        method.release()
-        passes.release()
-        gpu.release()
+    f = dss_frame(ctx, scene, params)
+    return f["surfels_raw"], f["patch_count"], f["origin"]
 
 
 def raw(tex):
@@ -68,14 +51,16 @@ def dss_frame(ctx, scene, params, w=W, h=H):
         ctx.finish()
         check_gl(ctx, "dss frame")
         n = method.surfel_count
-        surfels = np.frombuffer(method.surfels.read(n * SURFEL_BYTES), dtype=np.float32).reshape(n, SURFEL_BYTES // 4).copy()
+        surfels_raw = np.frombuffer(method.surfels.read(n * SURFEL_BYTES), dtype=np.float32).reshape(n, SURFEL_BYTES // 4).copy()
+        surfels = surfels_raw.copy()
         surfels[:, 7] = 0.0  # the uint key, not a float
         g = passes.gbuffer
         return {"surfels": surfels.astype(np.float64), "position": raw(g.position), "normal": raw(g.normal),
                 "albedo": raw(g.albedo), "receivers": raw(method.receiver_position), "indirect": raw(method.indirect),
                 "sizes": method.level_sizes.copy(), "rows": method.level_rows.copy(), "eps": resolved["eps_rel"] * gpu.radius,
                 "view": view.view, "pixel_k": 2.0 * np.tan(np.radians(view.camera.fov_y_deg) / 2) / h,
-                "params": resolved}
+                "params": resolved, "surfels_raw": surfels_raw, "patch_count": method.patch_count,
+                "origin": gpu.origin}
     finally:
         method.release()
         passes.release()
