@@ -30,10 +30,25 @@ class RenderResult:
     params: dict = field(default_factory=dict)
     extra: dict = field(default_factory=dict)
     stage_clock: str = ""                               # how stage_ms were measured (profiler.CLOCKS)
+    prepare_ms: float = 0.0                             # the method's untimed prepare (precomputation)
+    frames_total_ms: float = 0.0                        # wall time of every frame rendered (warm-up included)
 
     @property
     def combined(self) -> np.ndarray:
         return self.direct + self.indirect
+
+
+@dataclass(frozen=True)
+class TimingBudget:
+    """Calibrated timing: after the minimum frame count, stop when `budget_s` of timed frames is
+    spent, at `max_frames`, or when the median's 95% interval is within +-`rel_halfwidth`."""
+    budget_s: float = 1.0
+    max_frames: int = 100
+    rel_halfwidth: float = 0.05
+
+    def settled(self, samples, min_frames: int, elapsed_s: float) -> bool:
+        from bench.results import timing_settled
+        return timing_settled(samples, min_frames, elapsed_s, self.budget_s, self.max_frames, self.rel_halfwidth)
 
 
 def to_numpy(image, shape) -> np.ndarray:
@@ -50,7 +65,9 @@ def to_numpy(image, shape) -> np.ndarray:
 def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, width: int, height: int,
                params: dict | None = None, seed: int = 0, warmup: int = 1, frames: int = 3,
                facts: SceneFacts | None = None, gpu: GpuScene | None = None,
-               shadow_resolution: int = 1024) -> RenderResult:
+               shadow_resolution: int = 1024, timing: "TimingBudget | None" = None) -> RenderResult:
+    """`frames` timed frames, or with `timing` at least `frames` and then as many as its
+    budget and the median's confidence interval call for (see bench.results.timing_settled)."""
     if warmup < 1:
         raise ValueError("warmup must be >= 1 (frame 0 gives the images)")
     if frames < 1:
@@ -64,20 +81,33 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
     method = method_cls()
     shape = (height, width, 3)
     try:
+        t_prepare = time.perf_counter()
         method.prepare(gpu, scene, facts, params, view)
+        ctx.finish()
+        prepare_ms = (time.perf_counter() - t_prepare) * 1e3
         check_gl(ctx, f"method '{method_cls.name}' prepare")
         prof = StageProfiler(ctx, passes.stages + tuple(method_cls.stages))
-        result = RenderResult(direct=None, indirect=None, params=params, stage_clock=prof.clock)
+        result = RenderResult(direct=None, indirect=None, params=params, stage_clock=prof.clock, prepare_ms=prepare_ms)
         skipped: set = set()
         # A finish-fenced stage clock serialises the stages, which a real frame does not: then
         # the frame wall times come from K frames with the profiler off and the stage times
         # from K more frames with it on. Timer queries perturb nothing: one set of K frames.
         separate = prof.clock == "finish_wall"
-        total = warmup + frames * (2 if separate else 1)
-        for index in range(total):
+        index, wall_done, stage_count, timing_start = 0, False, 0, None
+        while True:
             timed = index >= warmup
-            wall_frame = timed and (not separate or index < warmup + frames)
-            stage_frame = timed and (not separate or index >= warmup + frames)
+            if timed and timing_start is None:
+                timing_start = time.perf_counter()
+            if timed and not wall_done:
+                # wall frames until the count (or the calibration) is satisfied
+                if timing is None:
+                    wall_done = len(result.frame_ms) >= frames
+                else:
+                    wall_done = timing.settled(result.frame_ms, frames, time.perf_counter() - timing_start)
+            if timed and wall_done and (stage_count >= frames if separate else True):
+                break
+            wall_frame = timed and not wall_done
+            stage_frame = timed and (wall_frame if not separate else wall_done)
             prof.enabled = not timed or stage_frame
             prof.begin_frame()
             frame = Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=index, seed=seed)
@@ -86,6 +116,7 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
             out: FrameOutput = method.render(frame, prof)
             ctx.finish()
             wall_ms = (time.perf_counter() - t0) * 1e3
+            result.frames_total_ms += wall_ms
             check_gl(ctx, f"method '{method_cls.name}' frame {index}")
             skipped.update(out.skipped_stages)
             if index == 0:
@@ -95,8 +126,13 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
             if wall_frame:
                 result.frame_ms.append(wall_ms)
             if stage_frame:
+                stage_count += 1
                 for stage, ms in prof.collect().items():
                     result.stage_ms.setdefault(stage, []).append(ms)
+            index += 1
+        if timing is not None:
+            result.extra["timing_frames"] = len(result.frame_ms)
+            result.extra["timing_budget_s"] = timing.budget_s
         result.skipped_stages = tuple(sorted(skipped))
         for name, img in (("direct", result.direct), ("indirect", result.indirect)):
             if not np.all(np.isfinite(img)):

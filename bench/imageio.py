@@ -12,7 +12,9 @@ def write_exr(path, image: np.ndarray) -> None:
     import OpenImageIO as oiio
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    img = np.ascontiguousarray(image, dtype=np.float32)
+    # OIIO's write_image fails without an error message on an unaligned or read-only buffer (an
+    # array unpickled from a Dask worker is often both): require a C-contiguous aligned copy then
+    img = np.require(np.asarray(image, dtype=np.float32), requirements=["C", "A", "W"])
     if img.ndim == 2:
         img = img[..., None]
     h, w, c = img.shape

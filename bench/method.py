@@ -119,6 +119,9 @@ class MethodBase:
     stages: ClassVar[tuple] = ()
     params: ClassVar[dict] = {}
     needs: ClassVar[frozenset] = frozenset()
+    # Quality ladder: 3-5 parameter-override dicts ordered fast -> accurate, one of them {} (the
+    # defaults). `gibench run` renders every rung (time-vs-error curve); empty = defaults only.
+    ladder: ClassVar[tuple] = ()
 
     def prepare(self, gpu, scene, facts, params: dict, view) -> None:
         self.params = params

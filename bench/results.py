@@ -143,3 +143,32 @@ def summarize_samples(samples: list[float]) -> tuple[float, float]:
     a = np.asarray(samples, dtype=np.float64)
     q1, med, q3 = np.percentile(a, [25, 50, 75])
     return float(med), float(q3 - q1)
+
+
+def median_ci(samples, confidence: float = 0.95) -> tuple[float, float]:
+    """Distribution-free confidence interval of the median (order statistics, normal
+    approximation of the binomial): (low, high); NaNs when there are too few samples (n < 6)."""
+    a = np.sort(np.asarray(samples, dtype=np.float64))
+    n = a.size
+    if n < 6:
+        return float("nan"), float("nan")
+    from scipy.stats import norm
+    z = float(norm.ppf(0.5 + confidence / 2))
+    j = int(np.floor(n / 2 - z * np.sqrt(n) / 2))
+    k = int(np.ceil(n / 2 + 1 + z * np.sqrt(n) / 2))
+    return float(a[max(j - 1, 0)]), float(a[min(k - 1, n - 1)])
+
+
+def timing_settled(samples, min_frames: int, elapsed_s: float, budget_s: float, max_frames: int,
+                   rel_halfwidth: float) -> bool:
+    """Stop timing (the way pytest-benchmark calibrates rounds): never before `min_frames`;
+    then when the time budget is spent, `max_frames` is reached, or the median's 95% interval
+    is within +-rel_halfwidth of the median."""
+    n = len(samples)
+    if n < min_frames:
+        return False
+    if elapsed_s >= budget_s or n >= max_frames:
+        return True
+    lo, hi = median_ci(samples)
+    med = float(np.median(samples))
+    return bool(np.isfinite(lo) and med > 0 and (hi - lo) / (2 * med) <= rel_halfwidth)

@@ -68,13 +68,19 @@ class RunConfig:
     references: bool = True                         # fetch/build Mitsuba references and metrics
     reference_spp_cap: int = 4096                   # refinement stops earlier, at 1/10 of the best MSE
     progress: bool = True
-    shadow_resolution: int = 1024
+    shadow_resolution: int | None = None            # shadow map tile side; None: from the view (auto_shadow_resolution)
+    ladders: bool = False                           # methods without --param run their quality ladder
+    timing_budget_s: float | None = None            # calibrated timing (>= `frames` frames), None: `frames` exactly
+    scheduler: str | None = None                    # a dask.distributed scheduler address (bench.distributed)
+    workers: int | None = None                      # or a LocalCluster of this many worker processes
 
     def validate(self) -> None:
         for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
                                        ("frames", self.frames, 1, 10000), ("warmup", self.warmup, 1, 1000)):
             if not (low <= int(value) <= high):
                 raise ValueError(f"{name}={value} outside [{low}, {high}]")
+        if self.timing_budget_s is not None and not (0.0 <= float(self.timing_budget_s) <= 3600.0):
+            raise ValueError(f"timing budget {self.timing_budget_s} s outside [0, 3600]")
         if not self.scenes:
             raise ValueError("no scene given")
         if not self.methods:
@@ -148,9 +154,25 @@ def row_cache_key(scene, camera: str, method: str, version: str, params: dict, c
     payload = {"scene": scene.content_hash(), "camera": camera, "camera_def": scene.cameras[camera].to_dict(),
                "method": method, "method_version": version, "params": params, "width": cfg.width,
                "height": cfg.height, "frames": cfg.frames, "warmup": cfg.warmup, "seed": cfg.seed,
-               "shadow_resolution": cfg.shadow_resolution, "renderer": renderer, "stage_clock": stage_clock,
+               "shadow_resolution": effective_shadow_resolution(cfg), "renderer": renderer, "stage_clock": stage_clock,
                "harness": harness_version()}
+    if cfg.timing_budget_s is not None:
+        payload["timing_budget_s"] = cfg.timing_budget_s
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+def auto_shadow_resolution(width: int, height: int) -> int:
+    """Shadow map tile side matched to the view: the smallest power of two >= the image's longer
+    side, within [256, 2048]. A cube face spans 90 degrees, a camera about 40-70, so a shadow texel
+    then subtends about one screen pixel: shadow edges as sharp as the image can show, while a
+    fixed 1024 made the shared shadow pass most of a frame on real scenes at 320x180 (12 faces of
+    1024^2 on llvmpipe)."""
+    side = max(int(width), int(height), 1)
+    return int(min(max(1 << (side - 1).bit_length(), 256), 2048))
+
+
+def effective_shadow_resolution(cfg: "RunConfig") -> int:
+    return int(cfg.shadow_resolution) if cfg.shadow_resolution else auto_shadow_resolution(cfg.width, cfg.height)
 
 
 def default_run_dir(root: Path = Path("runs")) -> Path:
@@ -176,10 +198,81 @@ def point_latest(run_dir: Path) -> None:
 
 
 def expand_param_sets(cfg: RunConfig, method: str) -> list[dict]:
+    """Parameter sets of `method` in this run: its --param grid, else (with `ladders`) its quality
+    ladder (fast -> accurate, the defaults among the rungs), else the defaults alone."""
     sets = cfg.params.get(method)
-    if not sets:
-        return [{}]
-    return [dict(s) for s in sets]
+    if sets:
+        return [dict(s) for s in sets]
+    if cfg.ladders:
+        try:
+            ladder = load_method(method).ladder
+        except Exception:  # a method that fails to load becomes a failed row of its own
+            ladder = ()
+        if ladder:
+            return [dict(s) for s in ladder]
+    return [{}]
+
+
+def reset_peak_rss() -> None:
+    """Start a new peak-RSS window (Linux: writing 5 to clear_refs resets VmHWM); no-op elsewhere."""
+    try:
+        with open("/proc/self/clear_refs", "w") as fh:
+            fh.write("5")
+    except OSError:
+        pass
+
+
+def peak_rss_mb() -> float:
+    """The process's peak resident memory since the last reset_peak_rss (MB; the lifetime peak
+    where the window cannot be reset)."""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
+    except (OSError, ValueError, IndexError):
+        pass
+    import resource
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def render_outcome(ctx, gpu, cfg: RunConfig, cls, scene, facts, view: str, params: dict) -> dict:
+    """Render one row, writing nothing: {"status": "ok", "measured": row fields, "images": {...}},
+    {"status": "skipped", "reason"} or {"status": "failed", "reason"}. Runs in the runner's process
+    or in a Dask worker (bench.distributed)."""
+    from bench.harness import TimingBudget, run_method
+    timing = None if cfg.timing_budget_s is None else TimingBudget(budget_s=float(cfg.timing_budget_s))
+    reset_peak_rss()
+    try:
+        result = run_method(ctx, cls, scene, view, cfg.width, cfg.height, params, seed=cfg.seed,
+                            warmup=cfg.warmup, frames=cfg.frames, facts=facts,
+                            shadow_resolution=effective_shadow_resolution(cfg), gpu=gpu, timing=timing)
+    except SkipRow as exc:
+        return {"status": "skipped", "reason": str(exc)}
+    except Exception as exc:
+        ctx.error  # clear a pending GL error so the next method starts clean
+        if os.environ.get("GIBENCH_DEBUG"):
+            traceback.print_exc()
+        return {"status": "failed", "reason": str(exc).splitlines()[0] if str(exc) else type(exc).__name__}
+    med, iqr = store.summarize_samples(result.frame_ms)
+    measured = {"frame_ms": med, "frame_ms_iqr": iqr, "status": "ok",
+                "skipped_stages": json.dumps(list(result.skipped_stages)),
+                "samples.frame_ms": json.dumps([round(v, 4) for v in result.frame_ms]),
+                "samples.stage_ms": json.dumps({k: [round(v, 4) for v in vs] for k, vs in result.stage_ms.items()})}
+    gpu_total = 0.0
+    for stage, samples in result.stage_ms.items():
+        m, _ = store.summarize_samples(samples)
+        measured[f"stage_ms.{stage}"] = m
+        gpu_total += m
+    for stage in result.skipped_stages:
+        measured.setdefault(f"stage_ms.{stage}", float("nan"))
+    measured.update({"gpu_ms": gpu_total, "stage_clock": result.stage_clock, "prepare_ms": result.prepare_ms,
+                     "frames_total_ms": result.frames_total_ms, "peak_rss_mb": peak_rss_mb()})
+    for k, v in result.extra.items():
+        if isinstance(v, (int, float, str, bool)):
+            measured[f"extra.{k}"] = v
+    images = {"direct": np.asarray(result.direct, np.float32), "indirect": np.asarray(result.indirect, np.float32),
+              "combined": np.asarray(result.combined, np.float32)}
+    return {"status": "ok", "measured": measured, "images": images}
 
 
 class Runner:
@@ -196,6 +289,11 @@ class Runner:
         self.kept: list[dict] = []   # rows of the folder this run does not produce (merge)
         self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
         self._view_lit: dict = {}   # (scene, view) -> did any rendered row have light
+        self._gpu = None            # (scene name, GpuScene): uploaded once per scene, shared by its rows
+        self._scene_refs: dict = {}  # scene name -> what a worker loads it from (corpus name / path / Scene)
+        # wall seconds per phase of the run (the manifest records them)
+        self.phases = {"setup": 0.0, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0, "rows_other": 0.0,
+                       "references": 0.0, "metrics": 0.0}
 
     def _validate_params(self) -> dict:
         """Every --param of every method, checked before the first row: {(method, i): resolved}."""
@@ -231,6 +329,7 @@ class Runner:
                 raise ValueError(f"two scenes are named '{scene.name}' ({given[scene.name]} and {what}): "
                                  f"scene names must be unique within a run")
             scenes[scene.name], given[scene.name] = scene, what
+            self._scene_refs[scene.name] = item if isinstance(item, str) else scene
         return scenes
 
     def _write_manifest(self, ctx, scenes, facts) -> None:
@@ -244,6 +343,7 @@ class Runner:
                           if k != "scenes"} | {"scenes": [getattr(s, "name", s) for s in self.cfg.scenes]},
             "scene_facts": {name: f.to_dict() for name, f in facts.items()},
             "scene_purposes": {name: s.purpose for name, s in scenes.items()},
+            "shadow_resolution": effective_shadow_resolution(self.cfg),
         }
         store.atomic_write_text(self.run_dir / "manifest.json", json.dumps(manifest, indent=2, default=str))
 
@@ -320,8 +420,10 @@ class Runner:
 
     # ------------------------------------------------------------------ main loop
     def run(self):
+        import time
         from bench.gl import create_context
         cfg = self.cfg
+        t_setup = time.perf_counter()
         ctx = create_context()
         scenes = self._load_scenes()
         facts = {name: compute_facts(s) for name, s in scenes.items()}
@@ -359,14 +461,24 @@ class Runner:
             from tqdm import tqdm
             progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr)
         references = ReferenceProvider(self.run_dir, cfg, self.log) if cfg.references else None
+        self.phases["setup"] += time.perf_counter() - t_setup
+        if cfg.scheduler or cfg.workers:
+            try:
+                self._run_distributed(ctx, scenes, jobs, renderer, resumable, references, progress)
+            finally:
+                if progress is not None:
+                    progress.close()
+            jobs = []   # done
         try:
             for scene_name, view, method, index, pset in jobs:
                 if progress is not None:
                     progress.set_description(f"{scene_name}/{view}/{method}")
+                t_row = time.perf_counter()
                 row = self._run_row(ctx, scenes[scene_name], facts[scene_name], view, method, pset,
                                     renderer, resumable, self.resolved.get((method, index)))
                 if references is not None and not str(row["status"]).startswith("failed"):
                     references.evaluate(row, scenes[scene_name], view)
+                self._account_row(row, time.perf_counter() - t_row)
                 self.rows.append(row)
                 self._save()
                 if not str(row["status"]).startswith("failed") and isinstance(row.get("row_key"), str):
@@ -377,13 +489,17 @@ class Runner:
         finally:
             if progress is not None:
                 progress.close()
+            self._release_gpu()
         for (scene_name, view), lit in self._view_lit.items():
             if not lit:
                 self.log(f"gibench: warning: {scene_name}/{view}: every method rendered an all-black image "
                          f"(does camera '{view}' see a lit surface?)")
         if references is not None:
             references.finish()
+            self.phases["references"] += references.seconds["references"]
+            self.phases["metrics"] += references.seconds["metrics"]
         df = store.save_results(self.run_dir, self.kept + self.rows)
+        self._record_phases()
         self._state["finished"] = True
         self._write_state()
         from bench.summary import write_summary
@@ -391,7 +507,93 @@ class Runner:
         return df
 
     def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable, resolved=None) -> dict:
-        from bench.harness import run_method
+        planned = self._plan_row(ctx, scene, view, method_name, pset, renderer, resumable, resolved)
+        if planned["done"]:
+            return planned["row"]
+        outcome = render_outcome(ctx, self._scene_gpu(ctx, scene, facts), self.cfg, planned["cls"], scene, facts,
+                                 view, planned["params"])
+        return self._finish_row(planned, outcome)
+
+    def _run_distributed(self, ctx, scenes, jobs, renderer, resumable, references, progress) -> None:
+        """Rows as Dask tasks (see bench.distributed); results kept in job order, references after."""
+        import time
+        from distributed import as_completed
+
+        from bench import distributed as dist
+        import dataclasses
+        client, cluster = dist.open_client(self.cfg.scheduler, self.cfg.workers)
+        try:
+            # what a task needs of the configuration (not the scenes, sent once each)
+            worker_cfg = dataclasses.replace(self.cfg, scenes=[], params={}, out=None)
+            scene_refs = {name: (ref if isinstance(ref, str) else client.scatter(ref, broadcast=True))
+                          for name, ref in self._scene_refs.items()}
+            done: dict = {}
+            futures = {}
+            for i, (scene_name, view, method, index, pset) in enumerate(jobs):
+                planned = self._plan_row(ctx, scenes[scene_name], view, method, pset, renderer, resumable,
+                                         self.resolved.get((method, index)))
+                if planned["done"]:
+                    done[i] = planned["row"]
+                    if progress is not None:
+                        progress.update(1)
+                    continue
+                fut = client.submit(dist.render_task, worker_cfg, scene_refs[scene_name], view, method,
+                                    planned["params"], retries=2, pure=False,
+                                    key=f"row-{planned['key']}-{i}")
+                futures[fut] = (i, planned)
+            for fut in as_completed(list(futures)):
+                i, planned = futures[fut]
+                try:
+                    outcome = fut.result()
+                except Exception as exc:  # the task's worker died more often than it was retried
+                    reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                    outcome = {"status": "failed", "reason": f"worker lost: {reason}"}
+                row = self._finish_row(planned, outcome)
+                if outcome.get("status") == "ok":
+                    method_s = (row["prepare_ms"] + row["frames_total_ms"]) / 1e3
+                    self.phases["precompute"] += row["prepare_ms"] / 1e3
+                    self.phases["timing"] += row["frames_total_ms"] / 1e3
+                    self.phases["scene_upload"] += float(outcome.get("upload_seconds", 0.0))
+                    row_s = float(outcome.get("seconds", method_s))
+                    self.phases["rows_other"] += max(row_s - method_s, 0.0)
+                    row["row_wall_ms"] = row_s * 1e3
+                    row["harness_overhead"] = max(row_s - method_s, 0.0) / row_s if row_s > 0 else float("nan")
+                    row["worker"] = outcome.get("worker")
+                done[i] = row
+                self.rows = [done[k] for k in sorted(done)]
+                self._save()
+                if not str(row["status"]).startswith("failed") and isinstance(row.get("row_key"), str):
+                    self._state["done"].append(f"{row['row_key']}|{row['image_dir']}")
+                    self._write_state()
+                if progress is not None:
+                    progress.set_description(f"{row['scene']}/{row['view']}/{row['method']}")
+                    progress.update(1)
+            self.rows = [done[k] for k in sorted(done)]
+            if references is not None:
+                t0 = time.perf_counter()
+                views = sorted({(r["scene"], r["view"]) for r in self.rows
+                                if str(r.get("status", "")).startswith(("ok", "cached"))})
+                cap = min(int(self.cfg.reference_spp_cap), ReferenceProvider.REFERENCE_FIRST_PASS_SPP)
+                refs = [client.submit(dist.reference_task, scene_refs[s], v, self.cfg.width, self.cfg.height,
+                                      comp, max(cap, 2), retries=2, pure=False)
+                        for s, v in views for comp in ReferenceProvider.COMPONENTS]
+                for fut in as_completed(refs):
+                    try:
+                        fut.result()
+                    except Exception as exc:  # the client renders (or reports) it itself below
+                        self.log(f"gibench: a reference task failed on its worker ({str(exc).splitlines()[0]})")
+                self.phases["references"] += time.perf_counter() - t0
+                for row in self.rows:
+                    if not str(row["status"]).startswith("failed"):
+                        references.evaluate(row, scenes[row["scene"]], row["view"])
+                        row.pop("_reference_seconds", None)
+                self._save()
+        finally:
+            dist.close_client(client, cluster)
+
+    def _plan_row(self, ctx, scene, view, method_name, pset, renderer, resumable, resolved=None) -> dict:
+        """The row's labels, key and image folder; a resumed, cached or failed-to-load row is done here
+        ({"done": True, "row": row}), else {"done": False, ...} with what rendering it needs."""
         from bench.method import resolve_params
         cfg = self.cfg
         row = {"scene": scene.name, "scene_hash": scene.content_hash(), "view": view, "method": method_name,
@@ -402,7 +604,7 @@ class Runner:
             params = resolved if resolved is not None else resolve_params(cls, pset)
             version = method_version(cls)
         except Exception as exc:  # load failure or bad parameter: recorded, the run goes on
-            return self._failed(row, exc)
+            return {"done": True, "row": self._failed(row, exc)}
         row["params"] = store.params_json(params)
         row["method_version"] = version
         from bench.gl.profiler import default_clock
@@ -413,7 +615,7 @@ class Runner:
 
         if (key, row["image_dir"]) in resumable and (image_dir / "combined.exr").is_file():
             self.counts["resumed"] += 1
-            return dict(resumable[(key, row["image_dir"])], **row)
+            return {"done": True, "row": dict(resumable[(key, row["image_dir"])], **row)}
         cached = None if cfg.force else self._cache_lookup(key)
         if cached is not None:
             cached_row, cached_dir = cached
@@ -423,46 +625,82 @@ class Runner:
             cached_row.update(row)  # measured values from the cache, every label from this run
             cached_row["status"] = "cached"
             self.counts["cached"] += 1
-            return cached_row
+            return {"done": True, "row": cached_row}
+        return {"done": False, "row": row, "cls": cls, "params": params, "key": key, "image_dir": image_dir,
+                "scene": scene, "view": view}
 
-        try:
-            result = run_method(ctx, cls, scene, view, cfg.width, cfg.height, params, seed=cfg.seed,
-                                warmup=cfg.warmup, frames=cfg.frames, facts=facts,
-                                shadow_resolution=cfg.shadow_resolution)
-        except SkipRow as exc:
-            row["status"] = f"skipped: {exc}"
+    def _finish_row(self, planned: dict, outcome: dict) -> dict:
+        """Write a rendered row's images and cache entry (or record its skip / failure)."""
+        row, image_dir = planned["row"], planned["image_dir"]
+        if outcome["status"] == "skipped":
+            row["status"] = f"skipped: {outcome['reason']}"
             self.counts["skipped"] += 1
             return row
-        except Exception as exc:
-            ctx.error  # clear a pending GL error so the next method starts clean
-            return self._failed(row, exc)
-        images = {"direct": result.direct, "indirect": result.indirect, "combined": result.combined}
+        if outcome["status"] == "failed":
+            return self._failed(row, RuntimeError(outcome["reason"]))
+        images = outcome["images"]
         for comp, img in images.items():
             write_exr(image_dir / f"{comp}.exr", img)
         # a view is suspicious only when no method lights it: `direct` alone is black by design
         # where every lit surface is off screen (hidden_bounce, the far room of rooms)
-        view_key = (scene.name, view)
-        self._view_lit[view_key] = self._view_lit.get(view_key, False) or bool(np.any(np.asarray(result.combined) > 0))
-        med, iqr = store.summarize_samples(result.frame_ms)
-        row.update({"frame_ms": med, "frame_ms_iqr": iqr, "status": "ok",
-                    "skipped_stages": json.dumps(list(result.skipped_stages)),
-                    "samples.frame_ms": json.dumps([round(v, 4) for v in result.frame_ms]),
-                    "samples.stage_ms": json.dumps({k: [round(v, 4) for v in vs] for k, vs in result.stage_ms.items()})})
-        gpu_total = 0.0
-        for stage, samples in result.stage_ms.items():
-            m, _ = store.summarize_samples(samples)
-            row[f"stage_ms.{stage}"] = m
-            gpu_total += m
-        for stage in result.skipped_stages:
-            row.setdefault(f"stage_ms.{stage}", float("nan"))
-        row["gpu_ms"] = gpu_total
-        row["stage_clock"] = result.stage_clock
-        for k, v in result.extra.items():
-            if isinstance(v, (int, float, str, bool)):
-                row[f"extra.{k}"] = v
+        view_key = (row["scene"], row["view"])
+        self._view_lit[view_key] = self._view_lit.get(view_key, False) or bool(np.any(images["combined"] > 0))
+        row.update(outcome["measured"])
         self.counts["ok"] += 1
-        self._cache_store(key, row, image_dir)
+        self._cache_store(planned["key"], row, image_dir)
         return row
+
+    # ------------------------------------------------------------------ shared scene upload, accounting
+    def _scene_gpu(self, ctx, scene, facts):
+        """The scene's GpuScene, uploaded once and shared by every row of the scene (rows run
+        grouped by scene); the upload is a phase of its own, not part of any row's overhead."""
+        import time
+        from bench.gl import GpuScene
+        if self._gpu is not None and self._gpu[0] == scene.name:
+            return self._gpu[1]
+        self._release_gpu()
+        t0 = time.perf_counter()
+        gpu = GpuScene(ctx, scene, seed=self.cfg.seed, facts=facts)
+        ctx.finish()
+        self.phases["scene_upload"] += time.perf_counter() - t0
+        self._gpu = (scene.name, gpu)
+        return gpu
+
+    def _release_gpu(self) -> None:
+        if self._gpu is not None:
+            self._gpu[1].release()
+            self._gpu = None
+
+    def _account_row(self, row: dict, seconds: float) -> None:
+        """Split a rendered row's wall time into the method's part (prepare, every frame) and the
+        harness's (read-back, EXR and cache writes, bookkeeping); reference fetches and metrics
+        are phases of their own. `harness_overhead` = the harness's part / the row's time."""
+        reference_s = float(row.pop("_reference_seconds", 0.0))
+        if row.get("status") != "ok":
+            return
+        method_s = (float(row.get("prepare_ms", 0.0)) + float(row.get("frames_total_ms", 0.0))) / 1e3
+        row_s = seconds - reference_s
+        self.phases["precompute"] += float(row.get("prepare_ms", 0.0)) / 1e3
+        self.phases["timing"] += float(row.get("frames_total_ms", 0.0)) / 1e3
+        self.phases["rows_other"] += max(row_s - method_s, 0.0)
+        row["row_wall_ms"] = row_s * 1e3
+        row["harness_overhead"] = max(row_s - method_s, 0.0) / row_s if row_s > 0 else float("nan")
+
+    def _record_phases(self) -> None:
+        """Add the wall time of each phase (and the harness overhead over the rendered rows) to the manifest."""
+        path = self.run_dir / "manifest.json"
+        try:
+            manifest = json.loads(path.read_text())
+        except (OSError, ValueError):
+            return
+        manifest["phases_s"] = {k: round(v, 3) for k, v in self.phases.items()}
+        manifest["peak_rss_mb"] = {f"{r['scene']}/{r['view']}/{r['method']}@{r.get('image_dir', '').rsplit('/', 1)[-1]}":
+                                   round(float(r["peak_rss_mb"]), 1) for r in self.rows if "peak_rss_mb" in r}
+        rendered = [r for r in self.rows if r.get("status") == "ok" and "row_wall_ms" in r]
+        total = sum(r["row_wall_ms"] for r in rendered)
+        if total > 0:
+            manifest["harness_overhead"] = round(self.phases["rows_other"] * 1e3 / total, 4)
+        store.atomic_write_text(path, json.dumps(manifest, indent=2, default=str))
 
     @staticmethod
     def _image_folder(method_name: str, params: dict, cls) -> str:
@@ -579,13 +817,14 @@ def _json_default(o):
 class ReferenceProvider:
     """Fetches (or builds) the Mitsuba references of each view and adds error columns.
 
-    Two passes. `evaluate()` (per row) uses a first-pass reference of at most
+    Two passes. `evaluate()` (per row) fetches a first-pass reference of at most
     REFERENCE_FIRST_PASS_SPP samples per pixel (or the cap, if lower). `finish()` then refines,
     for each view, every component whose noise floor is above 1/10 of the best method's MSE
     against it (bounded by `reference_spp_cap`; the cache continues from the first pass) and
-    re-evaluates that view's rows. Each row records the key, spp and noise floor of the
-    references it was judged against. Without Mitsuba the run goes on: error columns stay
-    empty (NaN), never zero, and the reason is logged once.
+    only then computes every row's error columns, once, against the final references (metrics
+    memoised by content in the cache: bench.evaluation). Each row records the key, spp and noise
+    floor of the references it was judged against. Without Mitsuba the run goes on: error
+    columns stay empty (NaN), never zero, and the reason is logged once.
     """
 
     COMPONENTS = ("direct", "indirect_unshadowed", "indirect_visible")
@@ -600,8 +839,17 @@ class ReferenceProvider:
         self._unavailable: str | None = None
         self._curves: dict = {}
         self._rows: dict = {}     # (scene name, view) -> [(row, scene)]
+        self.seconds = {"references": 0.0, "metrics": 0.0}   # wall time fetching/rendering references, judging rows
 
     def _reference(self, scene, view: str, component: str, target_mse: float | None = None):
+        import time
+        t0 = time.perf_counter()
+        try:
+            return self._reference_uncounted(scene, view, component, target_mse)
+        finally:
+            self.seconds["references"] += time.perf_counter() - t0
+
+    def _reference_uncounted(self, scene, view: str, component: str, target_mse: float | None = None):
         key = (scene.name, view, component)
         if key in self._refs and target_mse is None:
             return self._refs[key]
@@ -636,6 +884,14 @@ class ReferenceProvider:
         return ref
 
     def _apply(self, row: dict, refs: dict) -> None:
+        import time
+        t0 = time.perf_counter()
+        try:
+            self._apply_uncounted(row, refs)
+        finally:
+            self.seconds["metrics"] += time.perf_counter() - t0
+
+    def _apply_uncounted(self, row: dict, refs: dict) -> None:
         from bench.evaluation import evaluate_row
         for comp, ref in refs.items():
             if ref is not None:
@@ -646,14 +902,35 @@ class ReferenceProvider:
             return
         image_dir = self.run_dir / row["image_dir"]
         images = {c: read_exr(image_dir / f"{c}.exr") for c in IMAGE_COMPONENTS}
-        row.update(evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()}))
+        row.update(evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()},
+                                memo_dir=cache_root() / "metrics"))
 
     def evaluate(self, row: dict, scene, view: str) -> None:
+        """Fetch the view's first-pass references and record the row; its error columns come in finish()."""
         if not str(row.get("status", "")).startswith(("ok", "cached")):
             return  # skipped rows have no images to judge
-        refs = {c: self._reference(scene, view, c) for c in self.COMPONENTS}
+        import time
+        t0 = time.perf_counter()
+        for c in self.COMPONENTS:
+            self._reference(scene, view, c)
         self._rows.setdefault((scene.name, view), []).append((row, scene))
-        self._apply(row, refs)
+        row["_reference_seconds"] = time.perf_counter() - t0   # not the row's own time (see Runner._account_row)
+
+    def judge_all(self) -> None:
+        """Every recorded row's error columns against the final references of its view."""
+        rows = [(row, key) for key, entries in self._rows.items() for row, _ in entries]
+        progress = None
+        if self.cfg.progress and rows:
+            from tqdm import tqdm
+            progress = tqdm(total=len(rows), unit="row", dynamic_ncols=True, file=sys.stderr, desc="error metrics")
+        try:
+            for row, (scene_name, view) in rows:
+                self._apply(row, {c: self._refs.get((scene_name, view, c)) for c in self.COMPONENTS})
+                if progress is not None:
+                    progress.update(1)
+        finally:
+            if progress is not None:
+                progress.close()
 
     @staticmethod
     def _mse(image: np.ndarray, ref) -> float:
@@ -671,39 +948,49 @@ class ReferenceProvider:
         """
         if self._unavailable is not None:
             return
-        for (scene_name, view), rows in self._rows.items():
-            scene = rows[0][1]
-            refs = {c: self._refs.get((scene_name, view, c)) for c in self.COMPONENTS}
-            images: dict = {}
-            for row, _ in rows:
-                for name in set(self.JUDGES.values()):
-                    path = self.run_dir / row["image_dir"] / f"{name}.exr"
-                    if path.is_file():
-                        images.setdefault(name, []).append(read_exr(path))
-            changed = False
-            for comp in self.COMPONENTS:
-                for _ in range(4):
-                    ref = refs[comp]
-                    if ref is None or ref.noise_floor_mse == 0.0 or ref.spp >= self.cfg.reference_spp_cap:
-                        break
-                    errors = [self._mse(img, ref) - ref.noise_floor_mse for img in images.get(self.JUDGES[comp], [])]
-                    errors = [e for e in errors if np.isfinite(e)]
-                    if not errors:
-                        break
-                    target = self.TARGET_FRACTION * max(min(errors), 0.0)
-                    if ref.noise_floor_mse <= target:
-                        break
-                    refined = self._reference(scene, view, comp, target_mse=target)
-                    if refined is None or refined.spp == ref.spp:
-                        break
-                    refs[comp] = refined
-                    changed = True
-            if changed:
-                for row, _ in rows:
-                    self._apply(row, refs)
+        progress = None
+        if self.cfg.progress and self._rows:
+            from tqdm import tqdm
+            progress = tqdm(total=len(self._rows), unit="view", dynamic_ncols=True, file=sys.stderr,
+                            desc="refining references")
+        try:
+            for (scene_name, view), rows in self._rows.items():
+                self._refine_view(scene_name, view, rows)
+                if progress is not None:
+                    progress.update(1)
+        finally:
+            if progress is not None:
+                progress.close()
+
+    def _refine_view(self, scene_name: str, view: str, rows: list) -> None:
+        scene = rows[0][1]
+        refs = {c: self._refs.get((scene_name, view, c)) for c in self.COMPONENTS}
+        images: dict = {}
+        for row, _ in rows:
+            for name in set(self.JUDGES.values()):
+                path = self.run_dir / row["image_dir"] / f"{name}.exr"
+                if path.is_file():
+                    images.setdefault(name, []).append(read_exr(path))
+        for comp in self.COMPONENTS:
+            for _ in range(4):
+                ref = refs[comp]
+                if ref is None or ref.noise_floor_mse == 0.0 or ref.spp >= self.cfg.reference_spp_cap:
+                    break
+                errors = [self._mse(img, ref) - ref.noise_floor_mse for img in images.get(self.JUDGES[comp], [])]
+                errors = [e for e in errors if np.isfinite(e)]
+                if not errors:
+                    break
+                target = self.TARGET_FRACTION * max(min(errors), 0.0)
+                if ref.noise_floor_mse <= target:
+                    break
+                refined = self._reference(scene, view, comp, target_mse=target)
+                if refined is None or refined.spp == ref.spp:
+                    break
+                refs[comp] = refined
 
     def finish(self) -> None:
         self.refine()
+        self.judge_all()
         if self._curves:
             store.atomic_write_text(self.run_dir / "reference_curves.json", json.dumps(self._curves, default=_json_default))
 

@@ -24,8 +24,16 @@ from typing import Union
 import numpy as np
 
 
+# Characters at which str.splitlines() breaks a line, written escaped in an error message.
+_LINE_BREAKS = str.maketrans({c: repr(c)[1:-1] for c in "\n\r\x0b\x0c\x1c\x1d\x1e\x85\u2028\u2029"})
+
+
 class SceneError(ValueError):
-    """Bad scene input. The message is one line that names the scene and the culprit."""
+    """Bad scene input. The message is one line that names the scene and the culprit (a line break
+    inside a name, key or path it quotes is written escaped, e.g. `\\n`)."""
+
+    def __init__(self, message: str = ""):
+        super().__init__(str(message).translate(_LINE_BREAKS))
 
 
 # A scene name becomes a folder name under a run's images/ and references/: letters, digits
@@ -42,12 +50,20 @@ def check_scene_name(name) -> str:
     return name
 
 
+# Largest magnitude of a coordinate, direction or radiometric value: squares and cross products
+# of differences (distances, areas, normals) stay finite in float64, as every consumer computes
+# them (np.linalg.norm of 1e155 overflows to inf and a direction divided by it becomes zero).
+MAX_MAGNITUDE = 1e30
+
+
 def _vec3(value, what: str) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64).reshape(-1)
     if arr.shape != (3,):
         raise SceneError(f"{what}: expected 3 numbers, got {value!r}")
     if not np.all(np.isfinite(arr)):
         raise SceneError(f"{what}: non-finite value {value!r}")
+    if np.abs(arr).max() > MAX_MAGNITUDE:
+        raise SceneError(f"{what}: {arr.tolist()} is beyond +-{MAX_MAGNITUDE:g}")
     return arr
 
 
@@ -180,16 +196,31 @@ class Camera:
                 "fov_y_deg": self.fov_y_deg}
 
 
+# Per-triangle arrays are computed in chunks of this many triangles: the float64 temporaries of
+# a 10M-triangle scene (corners, edges, cross products) would otherwise take gigabytes at once.
+TRIANGLE_CHUNK = 1 << 20
+
+
+def _chunked(faces: np.ndarray, width: int, fn) -> np.ndarray:
+    out = np.empty((len(faces), width) if width > 1 else len(faces), dtype=np.float64)
+    for start in range(0, len(faces), TRIANGLE_CHUNK):
+        out[start:start + TRIANGLE_CHUNK] = fn(faces[start:start + TRIANGLE_CHUNK])
+    return out
+
+
 def triangle_areas(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    v0, v1, v2 = (vertices[faces[:, i]] for i in range(3))
-    return 0.5 * np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=1)
+    def areas(f):
+        v0, v1, v2 = (vertices[f[:, i]] for i in range(3))
+        return 0.5 * np.linalg.norm(np.cross(v1 - v0, v2 - v0), axis=1)
+    return _chunked(faces, 1, areas)
 
 
 def triangle_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    v0, v1, v2 = (vertices[faces[:, i]] for i in range(3))
-    n = np.cross(v1 - v0, v2 - v0)
-    length = np.linalg.norm(n, axis=1, keepdims=True)
-    return n / np.maximum(length, 1e-300)
+    def normals(f):
+        v0, v1, v2 = (vertices[f[:, i]] for i in range(3))
+        n = np.cross(v1 - v0, v2 - v0)
+        return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
+    return _chunked(faces, 3, normals)
 
 
 @dataclass
@@ -213,6 +244,7 @@ class Scene:
     purpose: str = ""
     dropped_degenerate: int = 0
     source: str = ""  # where it came from (generator or file), for the record
+    dropped_duplicates: int = 0
     _hash: str | None = field(default=None, repr=False)
 
     # ------------------------------------------------------------------ construction
@@ -223,7 +255,10 @@ class Scene:
 
         albedo: (T,3) per triangle, (V,3) per vertex (averaged over each triangle's vertices),
         or a single RGB for all. Zero-area triangles (area <= area_epsilon, relative to the
-        squared bounding-box diagonal) are dropped and counted in `dropped_degenerate`.
+        squared bounding-box diagonal) are dropped and counted in `dropped_degenerate`; a triangle
+        that repeats an earlier one (the same three vertex indices, either winding) is the same
+        surface and is dropped too, counted in `dropped_duplicates` (a method with one emitter per
+        triangle would count its light twice; the scene-file reader drops them the same way).
         normals: per-vertex shading normals; computed area-weighted from faces when None.
         """
         check_scene_name(name)
@@ -240,6 +275,11 @@ class Scene:
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
             raise SceneError(f"scene '{name}': non-finite vertex {i} {vertices[i].tolist()} ({int(bad.sum())} in all)")
+        huge = np.abs(vertices).max(axis=1) > MAX_MAGNITUDE
+        if huge.any():
+            i = int(np.flatnonzero(huge)[0])
+            raise SceneError(f"scene '{name}': vertex {i} {vertices[i].tolist()} is beyond +-{MAX_MAGNITUDE:g} "
+                             f"({int(huge.sum())} in all); rescale the scene")
         if faces.min() < 0 or faces.max() >= len(vertices):
             i = int(np.flatnonzero((faces < 0).any(1) | (faces >= len(vertices)).any(1))[0])
             raise SceneError(f"scene '{name}': face {i} indexes a vertex out of range {faces[i].tolist()} (V={len(vertices)})")
@@ -270,6 +310,10 @@ class Scene:
         if dropped:
             keep = ~degenerate
             faces, albedo = faces[keep], albedo[keep]
+        repeats = repeated_faces(faces, len(vertices))
+        duplicates = int(repeats.sum())
+        if duplicates:
+            faces, albedo = faces[~repeats], albedo[~repeats]
 
         if normals is None:
             normals = vertex_normals(vertices, faces)
@@ -301,7 +345,8 @@ class Scene:
             if not isinstance(cam, Camera):
                 raise SceneError(f"scene '{name}': camera '{cam_name}' is not a Camera")
         return cls(name=name, vertices=vertices, normals=normals, faces=faces, albedo=albedo,
-                   lights=lights, cameras=cameras, purpose=purpose, dropped_degenerate=dropped, source=source)
+                   lights=lights, cameras=cameras, purpose=purpose, dropped_degenerate=dropped, source=source,
+                   dropped_duplicates=duplicates)
 
     # ------------------------------------------------------------------ derived
     @property
@@ -323,7 +368,7 @@ class Scene:
         if self._hash is None:
             h = hashlib.sha256()
             for arr in (self.vertices, self.normals, self.faces.astype(np.int64), self.albedo):
-                h.update(np.ascontiguousarray(arr).tobytes())
+                h.update(memoryview(np.ascontiguousarray(arr)).cast("B"))  # no bytes copy of big arrays
                 h.update(str(arr.shape).encode())
             meta = {"lights": [l.to_dict() for l in self.lights],
                     "cameras": {k: c.to_dict() for k, c in sorted(self.cameras.items())}}
@@ -335,6 +380,20 @@ class Scene:
         """A copy with a different albedo (used by tests and what-if runs)."""
         return Scene.build(self.name, self.vertices, self.faces, albedo, self.lights, self.cameras,
                            normals=self.normals, purpose=self.purpose, source=self.source)
+
+
+def repeated_faces(faces: np.ndarray, vertex_count: int) -> np.ndarray:
+    """Mask of the triangles whose vertex indices (as a set: either winding) repeat an earlier triangle's."""
+    key = np.sort(faces, axis=1)
+    if vertex_count < 2_000_000:  # one int64 per triangle: a 1-D unique, several times faster than axis=0
+        n = np.int64(vertex_count)
+        key = (key[:, 0] * n + key[:, 1]) * n + key[:, 2]
+        _, first = np.unique(key, return_index=True)
+    else:
+        _, first = np.unique(key, axis=0, return_index=True)
+    repeats = np.ones(len(faces), dtype=bool)
+    repeats[first] = False
+    return repeats
 
 
 def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:

@@ -99,7 +99,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.scene import Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight, check_scene_name
+from bench.scene import (MAX_MAGNITUDE, Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight,
+                         check_scene_name)
 
 MESH_SUFFIXES = (".obj", ".ply", ".gltf", ".glb", ".stl", ".off", ".npz")
 _TEXT_SUFFIXES = (".obj", ".gltf", ".off")  # formats with no binary variant: must be UTF-8 text
@@ -250,6 +251,11 @@ def read_mesh(path, crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG, file_nor
         if not isinstance(geom, trimesh.Trimesh) or len(geom.faces) == 0:
             continue
         v = np.asarray(geom.vertices, dtype=np.float64)
+        bad = ~np.all(np.isfinite(v), axis=1)
+        if bad.any():  # before the transform, whose arithmetic on NaN / Inf would only warn
+            i = int(np.flatnonzero(bad)[0])
+            raise SceneError(f"mesh file '{path}': non-finite vertex {offset + i} {v[i].tolist()} "
+                             f"({int(bad.sum())} in this part)")
         transform = np.asarray(transform, dtype=np.float64)
         v = v @ transform[:3, :3].T + transform[:3, 3]
         has_normals = bool(file_normals) and "vertex_normals" in geom._cache
@@ -267,7 +273,7 @@ def read_mesh(path, crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG, file_nor
             kds.append(kd)
             mi = len(names) - 1
         f = np.asarray(geom.faces, dtype=np.int64)
-        if np.linalg.det(transform[:3, :3]) < 0:
+        if np.linalg.slogdet(transform[:3, :3])[0] < 0:
             f = f[:, ::-1]
         verts.append(v)
         fnormals.append(n)
@@ -469,7 +475,8 @@ def transformed(mesh: MeshData, matrix: np.ndarray) -> MeshData:
     vertices = mesh.vertices @ linear.T + matrix[:3, 3]
     normals = mesh.normals @ np.linalg.inv(linear)  # inverse transpose, row vectors
     normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
-    faces = mesh.faces[:, ::-1].copy() if np.linalg.det(linear) < 0 else mesh.faces
+    # slogdet: the sign of the determinant without overflow (scale 1e30) or underflow (1e-300)
+    faces = mesh.faces[:, ::-1].copy() if np.linalg.slogdet(linear)[0] < 0 else mesh.faces
     return MeshData(vertices, faces, normals, mesh.material_index, mesh.material_names, mesh.material_kd,
                     mesh.albedo, mesh.dropped_duplicates, dict(mesh.meta))
 
@@ -516,6 +523,8 @@ class _Ctx:
             raise self.error(where, f"'{key}' must be a number, got {type(value).__name__} {value!r}")
         if not math.isfinite(value):
             raise self.error(where, f"'{key}' must be finite, got {value!r}")
+        if abs(value) > MAX_MAGNITUDE:
+            raise self.error(where, f"'{key}' = {value!r} is beyond +-{MAX_MAGNITUDE:g}")
         return float(value)
 
     def vec3(self, value, key: str, where: str) -> np.ndarray:
@@ -523,6 +532,8 @@ class _Ctx:
             raise self.error(where, f"'{key}' must be a list of 3 numbers, got {value!r}")
         if not all(math.isfinite(x) for x in value):
             raise self.error(where, f"'{key}' must be finite, got {value!r}")
+        if max(abs(x) for x in value) > MAX_MAGNITUDE:
+            raise self.error(where, f"'{key}' = {value!r} is beyond +-{MAX_MAGNITUDE:g}")
         return np.array(value, dtype=np.float64)
 
     def rgb(self, value, key: str, where: str, low=0.0, high=None) -> np.ndarray:

@@ -1,8 +1,13 @@
 """`Scene` + camera -> Mitsuba 3 scene (`mi.load_dict`), matching the rasteriser exactly.
 
 * Geometry: one `mi.Mesh` built from the scene's arrays (no re-export): the same triangles,
-  the same per-vertex shading normals, the same re-centred float32 coordinates as the GPU
-  (`origin` = bounding-box centre of the used vertices, like `GpuScene.origin`).
+  the same per-vertex shading normals, re-centred on the bounding-box centre of the used
+  vertices (like `GpuScene.origin`) and scaled to unit radius: Mitsuba works in the frame
+  (world - origin) / R, R the bounding-sphere radius. Radiance is scale-free: point and spot
+  intensities become I / R^2 (the same irradiance at the same relative distance), directional
+  irradiance is unchanged. Mitsuba's ray offsets have an absolute floor ((1 + |p|) eps): in
+  world units a millimetre-sized scene lost or gained tens of percent of its light (the stress
+  suite's scale=1e-4 row); in the unit frame every scale gives the same image.
 * Material: two-sided diffuse (`twosided` around `diffuse`) like the GBuffer, albedo per
   triangle through the mesh attribute `face_albedo` (`mesh_attribute` texture).
 * Emitters: Mitsuba's `point` (intensity, W/sr), `spot` (intensity, cutoff_angle, beam_width)
@@ -25,6 +30,18 @@ def scene_origin(scene: Scene) -> np.ndarray:
     return 0.5 * (lo + hi)
 
 
+def scene_scale(scene: Scene) -> float:
+    """1 / R: Mitsuba's frame is (world - scene_origin) * scene_scale (unit bounding-sphere radius)."""
+    lo, hi = scene.bounds()
+    radius = 0.5 * float(np.linalg.norm(hi - lo))
+    return 1.0 / radius if radius > 0 else 1.0
+
+
+def to_frame(scene: Scene, points) -> np.ndarray:
+    """World points (..., 3) in Mitsuba's frame."""
+    return (np.asarray(points, dtype=np.float64) - scene_origin(scene)) * scene_scale(scene)
+
+
 def clip_range(scene: Scene, camera_name: str) -> tuple[float, float]:
     """Near/far clip distances that contain the whole scene (as the GL view does)."""
     lo, hi = scene.bounds()
@@ -35,7 +52,7 @@ def clip_range(scene: Scene, camera_name: str) -> tuple[float, float]:
     return near, far * 2.0
 
 
-def build_mesh(mi, scene: Scene, origin: np.ndarray):
+def build_mesh(mi, scene: Scene, origin: np.ndarray, scale: float = 1.0):
     bsdf = mi.load_dict({"type": "twosided", "material": {
         "type": "diffuse", "reflectance": {"type": "mesh_attribute", "name": "face_albedo"}}})
     props = mi.Properties()
@@ -45,7 +62,7 @@ def build_mesh(mi, scene: Scene, origin: np.ndarray):
     params = mi.traverse(mesh)
     # buffer types differ by variant (mi.Float in llvm_*, dr.scalar.ArrayXf in scalar_*)
     float_buffer, index_buffer = type(params["vertex_positions"]), type(params["faces"])
-    params["vertex_positions"] = float_buffer(np.ascontiguousarray((scene.vertices - origin).astype(np.float32).ravel()))
+    params["vertex_positions"] = float_buffer(np.ascontiguousarray(((scene.vertices - origin) * scale).astype(np.float32).ravel()))
     params["vertex_normals"] = float_buffer(np.ascontiguousarray(scene.normals.astype(np.float32).ravel()))
     params["faces"] = index_buffer(np.ascontiguousarray(scene.faces.astype(np.uint32).ravel()))
     params.update()
@@ -57,16 +74,18 @@ def _rgb(values) -> dict:
     return {"type": "rgb", "value": [float(v) for v in values]}
 
 
-def emitter_dict(mi, light, origin: np.ndarray) -> dict:
+def emitter_dict(mi, light, origin: np.ndarray, scale: float = 1.0) -> dict:
     if isinstance(light, PointLight):
-        return {"type": "point", "position": (light.position - origin).tolist(), "intensity": _rgb(light.intensity)}
+        return {"type": "point", "position": ((light.position - origin) * scale).tolist(),
+                "intensity": _rgb(np.asarray(light.intensity) * scale * scale)}
     if isinstance(light, SpotLight):
-        pos, target = light.position - origin, light.target - origin
+        pos, target = (light.position - origin) * scale, (light.target - origin) * scale
         axis = light.direction
         up = np.array([0.0, 1.0, 0.0]) if abs(axis[1]) < 0.9 else np.array([1.0, 0.0, 0.0])
         return {"type": "spot", "to_world": mi.ScalarTransform4f().look_at(origin=pos.tolist(), target=target.tolist(),
                                                                             up=up.tolist()),
-                "intensity": _rgb(light.intensity), "cutoff_angle": float(light.cutoff_angle_deg),
+                "intensity": _rgb(np.asarray(light.intensity) * scale * scale),
+                "cutoff_angle": float(light.cutoff_angle_deg),
                 "beam_width": float(light.beam_width_deg)}
     if isinstance(light, DirectionalLight):
         return {"type": "directional", "direction": light.direction.tolist(), "irradiance": _rgb(light.irradiance)}
@@ -74,7 +93,7 @@ def emitter_dict(mi, light, origin: np.ndarray) -> dict:
 
 
 def sensor_dict(mi, scene: Scene, camera_name: str, width: int, height: int, origin: np.ndarray,
-                spp: int = 1, sampler: dict | None = None) -> dict:
+                spp: int = 1, sampler: dict | None = None, scale: float = 1.0) -> dict:
     if camera_name not in scene.cameras:
         raise SceneError(f"scene '{scene.name}' has no camera '{camera_name}'; cameras: {sorted(scene.cameras)}")
     if int(width) < 1 or int(height) < 1:
@@ -83,9 +102,9 @@ def sensor_dict(mi, scene: Scene, camera_name: str, width: int, height: int, ori
     near, far = clip_range(scene, camera_name)
     return {
         "type": "perspective", "fov": float(cam.fov_y_deg), "fov_axis": "y",
-        "near_clip": near, "far_clip": far,
-        "to_world": mi.ScalarTransform4f().look_at(origin=(cam.eye - origin).tolist(),
-                                                   target=(cam.target - origin).tolist(), up=cam.up.tolist()),
+        "near_clip": near * scale, "far_clip": far * scale,
+        "to_world": mi.ScalarTransform4f().look_at(origin=((cam.eye - origin) * scale).tolist(),
+                                                   target=((cam.target - origin) * scale).tolist(), up=cam.up.tolist()),
         "film": {"type": "hdrfilm", "width": int(width), "height": int(height), "pixel_format": "rgb",
                  "rfilter": {"type": "box"}, "sample_border": False},
         "sampler": sampler or {"type": "independent", "sample_count": int(spp)},
@@ -94,15 +113,15 @@ def sensor_dict(mi, scene: Scene, camera_name: str, width: int, height: int, ori
 
 def scene_dict(mi, scene: Scene, camera_name: str, width: int, height: int, integrator: dict | None = None,
                sampler: dict | None = None, emitters: list | None = None) -> dict:
-    """The Mitsuba scene dict (mesh object included) of one view. Coordinates are re-centred
-    on `scene_origin(scene)`: positions Mitsuba reports are world positions minus that origin.
+    """The Mitsuba scene dict (mesh object included) of one view, in the unit frame: positions
+    Mitsuba reports are (world - scene_origin) * scene_scale (see `to_frame`).
     `emitters`: already-loaded emitter objects, one per scene light (else dicts are used)."""
-    origin = scene_origin(scene)
+    origin, scale = scene_origin(scene), scene_scale(scene)
     d = {"type": "scene",
-         "geometry": build_mesh(mi, scene, origin),
-         "sensor": sensor_dict(mi, scene, camera_name, width, height, origin, sampler=sampler)}
+         "geometry": build_mesh(mi, scene, origin, scale),
+         "sensor": sensor_dict(mi, scene, camera_name, width, height, origin, sampler=sampler, scale=scale)}
     for i, light in enumerate(scene.lights):
-        d[f"light_{i:04d}"] = emitters[i] if emitters is not None else emitter_dict(mi, light, origin)
+        d[f"light_{i:04d}"] = emitters[i] if emitters is not None else emitter_dict(mi, light, origin, scale)
     if integrator is not None:
         d["integrator"] = integrator
     return d
@@ -120,17 +139,17 @@ class MitsubaView:
     lights: list
 
 
-def light_samplers(mi, scene: Scene, emitters: list, origin: np.ndarray) -> list:
+def light_samplers(mi, scene: Scene, emitters: list, origin: np.ndarray, scale: float = 1.0) -> list:
     from reference.integrators import LightSampler
     lo, hi = scene.bounds()
-    center = tuple((0.5 * (lo + hi) - origin).tolist())
-    radius = 0.5 * float(np.linalg.norm(hi - lo)) * 1.01 + 1e-6
+    center = tuple(((0.5 * (lo + hi) - origin) * scale).tolist())
+    radius = (0.5 * float(np.linalg.norm(hi - lo)) * 1.01 + 1e-6) * scale
     out = []
     for light, emitter in zip(scene.lights, emitters):
         if isinstance(light, PointLight):
-            out.append(LightSampler(emitter, "point", position=tuple((light.position - origin).tolist())))
+            out.append(LightSampler(emitter, "point", position=tuple(((light.position - origin) * scale).tolist())))
         elif isinstance(light, SpotLight):
-            out.append(LightSampler(emitter, "spot", position=tuple((light.position - origin).tolist()),
+            out.append(LightSampler(emitter, "spot", position=tuple(((light.position - origin) * scale).tolist()),
                                     axis=tuple(light.direction.tolist()),
                                     cos_cutoff=float(np.cos(np.radians(light.cutoff_angle_deg)))))
         else:
@@ -142,7 +161,7 @@ def light_samplers(mi, scene: Scene, emitters: list, origin: np.ndarray) -> list
 def build_view(mi, scene: Scene, camera_name: str, width: int, height: int) -> MitsubaView:
     """The Mitsuba scene of one view plus light samplers sharing its emitter objects (used by
     the reference integrators' light-sampled MIS)."""
-    origin = scene_origin(scene)
-    emitters = [mi.load_dict(emitter_dict(mi, light, origin)) for light in scene.lights]
+    origin, scale = scene_origin(scene), scene_scale(scene)
+    emitters = [mi.load_dict(emitter_dict(mi, light, origin, scale)) for light in scene.lights]
     mscene = mi.load_dict(scene_dict(mi, scene, camera_name, width, height, emitters=emitters))
-    return MitsubaView(mscene, light_samplers(mi, scene, emitters, origin))
+    return MitsubaView(mscene, light_samplers(mi, scene, emitters, origin, scale))

@@ -31,7 +31,7 @@ from bench import results as store
 from bench.imageio import read_exr
 from bench.sweep import SPEEDUP_COMPONENTS, load_curves, pareto_table, sweep_table
 
-from . import plots
+from . import comparisons, plots
 
 METRIC_NAMES = ("mse", "relmse", "smape", "dssim", "flip_mean", "flip_median", "ciede2000", "mean_ratio")
 # mean_ratio (image mean / reference mean) is a bias figure: best is closest to 1, not lowest.
@@ -361,7 +361,14 @@ def run_info_html(manifest: dict, run_dir: Path) -> str:
                                                 for k, v in d.items()) + "</dl>"
     general = {"run folder": run_dir.resolve(), "created": manifest.get("created"),
                "git commit": manifest.get("git_commit"), "results schema": manifest.get("schema_version")}
-    return ("<div class='row'><div><h3>Run</h3>" + kv(general) + "<h3>Machine</h3>" + kv(machine) + "</div>"
+    phases = manifest.get("phases_s") or {}
+    timing = ""
+    if phases:
+        shown = {k: f"{float(v):.1f} s" for k, v in phases.items()}
+        if manifest.get("harness_overhead") is not None:
+            shown["harness overhead"] = f"{100 * float(manifest['harness_overhead']):.1f}% of the rendered rows' time"
+        timing = "<h3>Wall time per phase</h3>" + kv(shown)
+    return ("<div class='row'><div><h3>Run</h3>" + kv(general) + timing + "<h3>Machine</h3>" + kv(machine) + "</div>"
             "<div><h3>Versions</h3>" + kv(versions) + "</div></div><h3>Parameters</h3><pre class='args'>"
             + esc(json.dumps(manifest.get("arguments", {}), indent=2, default=str)) + "</pre>")
 
@@ -384,6 +391,8 @@ def build_report(run_dir, out_dir=None) -> Path:
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run folder not found: {run_dir}")
+    if (run_dir / STRESS_TABLE).is_file() and not (run_dir / "results.csv").is_file():
+        return build_stress_report(run_dir, out_dir)  # a `gibench stress` folder
     df = store.load_results(run_dir)
     manifest_path = run_dir / "manifest.json"
     manifest = json.loads(manifest_path.read_text()) if manifest_path.is_file() else {}
@@ -468,6 +477,22 @@ def build_report(run_dir, out_dir=None) -> Path:
     else:
         parts.append("<p class='note'>No Mitsuba convergence curves or no error columns in this run: speed-ups unavailable.</p>")
 
+    facts = manifest.get("scene_facts", {}) or {}
+    fits = plots.scaling_fits(table, {k: v.get("triangle_count") for k, v in facts.items() if isinstance(v, dict)}) \
+        if len(table) else {}
+    if fits:
+        sp = plots.scaling_plot(fits, out_dir / "plots" / "scaling.svg")
+        body = ["<tr>" + f"<td class='l'>{esc(m)}</td>" + _cell(slope) + _cell(int(n.max())) + _cell(float(t.max()))
+                + "</tr>" for m, (n, t, slope) in fits.items()]
+        parts += ["<h2 id='scaling'>Cost vs triangles</h2>",
+                  "<p class='note'>Frame time over the high-poly series (same room, terrain of 10k to 10M triangles), "
+                  "log-log with the least-squares slope: 1 is linear in the triangle count, 0 independent of it.</p>",
+                  f"<img class='plot' alt='cost vs triangles' src='plots/{sp.name}'>" if sp is not None else "",
+                  _table(["method", "slope", "largest scene (tris)", "its frame ms"], body)]
+    parts += ["<h2 id='between'>Between methods: equal time, equal error</h2>",
+              comparisons.between_methods_html(table, run_dir, out_dir, fmt, esc, _table),
+              "<h2 id='papers'>Paper reproduction</h2>",
+              comparisons.reproduction_html(table, manifest, out_dir, fmt, esc, _table)]
     parts += ["<h2 id='scene-facts'>Scene facts</h2>", scene_facts_table(manifest),
               "<h2 id='references'>References</h2>", noise_floor_table(table)]
     metrics = metrics_html(metric_cols)
@@ -477,8 +502,8 @@ def build_report(run_dir, out_dir=None) -> Path:
 
     toc = "".join(f"<a href='#{a}'>{t}</a>" for a, t in (
         ("overview", "Time and error"), ("scenes", "Scenes"), ("timing", "Stages"), ("speedup", "Speed-up"),
-        ("scene-facts", "Scene facts"), ("references", "References"), ("metrics", "Metrics"), ("run", "Run"))
-        if metrics or a != "metrics")
+        ("scaling", "Scaling"), ("between", "Between methods"), ("papers", "Papers"), ("scene-facts", "Scene facts"), ("references", "References"), ("metrics", "Metrics"), ("run", "Run"))
+        if (metrics or a != "metrics") and (fits or a != "scaling"))
     machine = manifest.get("machine", {})
     n_ok = len(table)
     subtitle = (f"{n_ok} rendered rows, {len(views)} views, {len(set(table['method'])) if n_ok else 0} methods"
@@ -490,3 +515,133 @@ def build_report(run_dir, out_dir=None) -> Path:
     index = out_dir / "index.html"
     store.atomic_write_text(index, page)
     return index
+
+
+# ---------------------------------------------------------------------------- stress page
+STRESS_TABLE = "stress.csv"
+_STRESS_VERDICT_TEXT = {"pass": "pass", "fail": "FAIL", "documented": "doc.", "skipped": "skip"}
+
+
+def _stress_cell(rows: pd.DataFrame) -> str:
+    """One matrix cell: the worst verdict of `rows` with its figures in the tooltip."""
+    if rows.empty:
+        return f"<td class='missing'>{MISSING}</td>"
+    order = ["fail", "documented", "pass", "skipped"]
+    verdicts = [v for v in order if v in set(rows["verdict"].astype(str))]
+    worst = verdicts[0] if verdicts else "skipped"
+    tips = []
+    for r in rows.to_dict("records"):
+        figures = ", ".join(f"{k} {fmt(r.get(k))}" for k in ("change", "change_indirect", "mean_change", "tolerance", "nan_pixels",
+                                                              "inf_pixels", "negative_pixels", "error_change")
+                            if fmt(r.get(k)) != MISSING)
+        tips.append(f"{r['perturbation']}: {r['verdict']}; {figures}; {r.get('note') or ''}")
+    change = rows["change"] if "change" in rows.columns else pd.Series(dtype=float)
+    shown = pd.to_numeric(change, errors="coerce").max() if len(rows) == 1 else None
+    text = _STRESS_VERDICT_TEXT.get(worst, worst)
+    first_problem = str(rows["note"].iloc[0]).split(";")[0].strip() if len(rows) == 1 and "note" in rows else ""
+    if worst in ("fail", "documented") and first_problem and " > " in first_problem:
+        text += f" <span class='note'>{esc(first_problem)}</span>"  # the figure that failed, with its tolerance
+    elif shown is not None and np.isfinite(shown):
+        text += f" <span class='note'>{fmt(shown, 2)}</span>"
+    if len(rows) > 1:
+        counts = rows["verdict"].astype(str).value_counts()
+        text += " <span class='note'>" + esc(", ".join(f"{n} {v}" for v, n in counts.items())) + "</span>"
+    return f"<td class='v-{esc(worst)}' title='{esc(chr(10).join(tips))}'>{text}</td>"
+
+
+def _stress_matrix(table: pd.DataFrame) -> str:
+    parts = []
+    scene_rows = table[(table["scene"] != "-") & table["target"].isin(["method", "reference"])]
+    for scene, g in scene_rows.groupby("scene", sort=False):
+        columns = [p for p in dict.fromkeys(g["perturbation"]) if not str(p).startswith("params:")]
+        targets = list(dict.fromkeys(zip(g["target"], g["name"])))
+        header = ["target"] + columns + ["parameter extremes"]
+        body = []
+        for target, name in targets:
+            mine = g[(g["target"] == target) & (g["name"] == name)]
+            label = name if target == "method" else f"reference: {name}"
+            cells = [f"<td class='l'>{esc(label)}</td>"]
+            cells += [_stress_cell(mine[mine["perturbation"] == p]) for p in columns]
+            params = mine[mine["perturbation"].astype(str).str.startswith("params:")]
+            cells.append(_stress_cell(params) if target == "method" else f"<td class='missing'>{MISSING}</td>")
+            body.append("<tr>" + "".join(cells) + "</tr>")
+        parts += [f"<h3>{esc(scene)} / {esc(g['view'].iloc[0])}</h3>", _table(header, body)]
+    return "".join(parts) or "<p class='note'>No scene rows.</p>"
+
+
+def _stress_rows(rows: pd.DataFrame, columns: list[str]) -> str:
+    body = []
+    for r in rows.to_dict("records"):
+        cells = []
+        for c in columns:
+            v = r.get(c)
+            if c == "verdict":
+                cells.append(f"<td class='l v-{esc(v)}'>{esc(v)}</td>")
+            elif c in ("scene", "perturbation", "target", "name", "status", "params"):
+                cells.append(f"<td class='l'>{esc(v)}</td>")
+            elif c in ("note", "criterion"):
+                cells.append(f"<td class='wrap'>{esc('' if v is None or v != v else v)}</td>")
+            else:
+                cells.append(_cell(v))
+        body.append("<tr>" + "".join(cells) + "</tr>")
+    text = ("scene", "perturbation", "target", "name", "status", "params", "verdict", "note", "criterion")
+    head = "".join(f"<th class='l'>{esc(c)}</th>" if c in text else f"<th>{esc(c)}</th>" for c in columns)
+    return f"<table class='data'><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
+
+
+def build_stress_report(run_dir, out_dir=None) -> Path:
+    """The page of a `gibench stress` folder (`stress.csv`, `stress.json`): `<out_dir or run_dir>/stress.html`."""
+    run_dir = Path(run_dir)
+    table = pd.read_csv(run_dir / STRESS_TABLE, keep_default_na=True)
+    for col in ("note", "criterion", "status", "params"):
+        if col in table.columns:
+            table[col] = table[col].astype(object).where(table[col].notna(), "").astype(str)
+    meta_path = run_dir / "stress.json"
+    meta = json.loads(meta_path.read_text()) if meta_path.is_file() else {}
+    out_dir = Path(out_dir) if out_dir is not None else run_dir
+    assets = out_dir / "assets"
+    assets.mkdir(parents=True, exist_ok=True)
+    css = resources.files(__package__) / "static" / "report.css"
+    (assets / "report.css").write_text(css.read_text(encoding="utf-8"), encoding="utf-8")
+
+    counts = table["verdict"].astype(str).value_counts().to_dict() if len(table) else {}
+    cfg = meta.get("config", {})
+    subtitle = (", ".join(f"{counts.get(k, 0)} {k}" for k in ("pass", "fail", "documented", "skipped"))
+                + f" &middot; {esc(', '.join(map(str, cfg.get('scenes', []))))} at {esc(cfg.get('width'))}x{esc(cfg.get('height'))}"
+                + (" (quick)" if cfg.get("quick") else "")
+                + f" &middot; references: {esc(meta.get('references', '?'))}"
+                + f" &middot; commit {esc(str(meta.get('git_commit') or '?')[:12])}")
+    bad = table[table["verdict"].isin(["fail", "documented"])]
+    detail = ["scene", "perturbation", "target", "name", "params", "verdict", "nan_pixels", "inf_pixels",
+              "negative_pixels", "change", "change_indirect", "mean_change", "tolerance", "error_base", "error",
+              "error_change", "note"]
+    detail = [c for c in detail if c in table.columns]
+    other = table[table["scene"] == "-"]
+    parts = ["<h2 id='matrix'>Verdicts per target and perturbation</h2>",
+             "<p class='note'>Cell: the verdict (figure: relative L1 change of the combined image, or of the "
+             "reference component, against the unperturbed case); hover for every figure. The last column sums a "
+             "method's parameter extremes.</p>",
+             _stress_matrix(table)]
+    if len(other):
+        parts += ["<h3>Scene model, scene reader</h3>", _stress_rows(other, ["perturbation", "target", "verdict",
+                                                                           "criterion", "note"])]
+    parts += ["<h2 id='failures'>Failures and documented limits</h2>",
+              _stress_rows(bad, detail) if len(bad) else "<p class='note'>None.</p>",
+              "<h2 id='table'>All rows</h2>", _stress_rows(table, detail + ["criterion"]),
+              "<h2 id='criteria'>Criteria</h2>",
+              "<p class='note'>Every image must be free of NaN, Inf and negative pixels. An invariance (scale with "
+              "radiance-preserving intensities, translation, injected degenerate geometry, the same seed twice) "
+              "must also keep the image: relative L1 change &le; the row's tolerance, "
+              f"max({esc(meta.get('tolerance_floor'))}, {esc(meta.get('noise_factor'))} &times; the target's own noise) "
+              "(a method's seed-to-seed change, a reference's expected difference from its variance images). Grazing "
+              "views and lights and parameter extremes must run and stay finite and non-negative; their change and "
+              "error figures are reported, not judged. error: relMSE of the combined image against Mitsuba "
+              "(direct + indirect with visibility); error_change = error / error_base - 1. documented: the failure "
+              "matches a <code>Stress limit PATTERN: reason</code> line of the target's manual.</p>",
+              "<h2 id='run'>Run</h2><pre class='args'>" + esc(json.dumps(meta, indent=2, default=str)) + "</pre>"]
+    template = Template((resources.files(__package__) / "templates" / "stress.html").read_text(encoding="utf-8"))
+    page = template.substitute(title=esc(f"gibench stress: {run_dir.resolve().name}"), subtitle=subtitle,
+                               body="\n".join(parts))
+    path = out_dir / "stress.html"
+    store.atomic_write_text(path, page)
+    return path

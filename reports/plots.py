@@ -114,3 +114,47 @@ def stage_plot(rows: pd.DataFrame, stages: list[str], path: Path, title: str) ->
     ax.grid(True, axis="x", lw=0.3, alpha=0.5)
     fig.legend(loc="outside lower center", ncols=4, fontsize=7, frameon=False)
     return _save(fig, path)
+
+
+def scaling_fits(table: pd.DataFrame, triangles: dict, series_prefix: str = "highpoly_") -> dict:
+    """method -> (triangle counts, median frame ms, fitted log-log slope or NaN) over the high-poly
+    series (each method's default rung; the mean over a scene's views)."""
+    from bench.compare import default_row
+    rows = table[table["scene"].astype(str).str.startswith(series_prefix)]
+    out = {}
+    for method, g in rows.groupby("method", sort=True):
+        pts = []
+        for scene, gs in g.groupby("scene"):
+            n = triangles.get(scene)
+            t = [float(gv.loc[default_row(gv), "frame_ms"]) for _, gv in gs.groupby("view")]
+            if n and np.isfinite(t).all():
+                pts.append((float(n), float(np.mean(t))))
+        pts.sort()
+        if not pts:
+            continue
+        n, t = (np.asarray(v) for v in zip(*pts))
+        ok = (n > 0) & (t > 0)
+        slope = float(np.polyfit(np.log(n[ok]), np.log(t[ok]), 1)[0]) if ok.sum() >= 2 else float("nan")
+        out[method] = (n, t, slope)
+    return out
+
+
+def scaling_plot(fits: dict, path: Path) -> Path | None:
+    """Log-log frame time vs triangle count per method, with the fitted slope in the legend."""
+    from matplotlib.figure import Figure
+    if not fits:
+        return None
+    fig = Figure(figsize=(5.2, 3.6), layout="constrained")
+    ax = fig.subplots()
+    for i, (method, (n, t, slope)) in enumerate(fits.items()):
+        label = f"{method} (slope {slope:.2f})" if np.isfinite(slope) else method
+        ax.plot(n, t, marker="osD^v<>ph*"[i % 10], ms=5, lw=1.2, color=f"C{i % 10}", label=label)
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    ax.set_xlabel("triangles", fontsize=8)
+    ax.set_ylabel("frame time (ms)", fontsize=8)
+    ax.tick_params(labelsize=7)
+    ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    ax.legend(fontsize=7, frameon=False)
+    fig.suptitle("cost vs triangles (high-poly series, default parameters)", fontsize=10)
+    return _save(fig, path)

@@ -98,3 +98,23 @@ def test_mean_ratio_is_image_mean_over_reference_mean_on_covered_pixels():
     # a black reference gives no column, not a division error
     dark = dict(refs, indirect_unshadowed=np.zeros_like(refs["indirect_unshadowed"]))
     assert "mean_ratio.indirect" not in evaluate_row(images, dark)
+
+
+def test_metric_memo_returns_the_same_columns_without_recomputing(tmp_path, monkeypatch):
+    import bench.metrics
+    from bench.evaluation import evaluate_row
+    rng = np.random.default_rng(3)
+    imgs = {c: rng.random((12, 16, 3), dtype=np.float32) for c in ("direct", "indirect", "combined")}
+    refs = {c: rng.random((12, 16, 3), dtype=np.float32) for c in ("direct", "indirect_unshadowed", "indirect_visible")}
+    fresh = evaluate_row(imgs, refs)
+    first = evaluate_row(imgs, refs, memo_dir=tmp_path)
+    assert first == pytest.approx(fresh, nan_ok=True)
+
+    def boom(*a, **k):
+        raise AssertionError("recomputed despite the memo")
+    monkeypatch.setattr(bench.metrics, "compute_all", boom)
+    assert evaluate_row(imgs, refs, memo_dir=tmp_path) == first
+    # another image is another key: computed (here: the patched function raises)
+    imgs2 = dict(imgs, indirect=imgs["indirect"] * 2)
+    with pytest.raises(AssertionError, match="recomputed"):
+        evaluate_row(imgs2, refs, memo_dir=tmp_path)

@@ -1,4 +1,5 @@
 """The method registry: fake entry points, lazy listing, failing plugins."""
+import json
 import sys
 import types
 from importlib.metadata import EntryPoint
@@ -77,3 +78,18 @@ def test_params_are_range_checked():
         resolve_params(FakeGood, {"q": 1})
     with pytest.raises(ParamError, match="must be an integer"):
         resolve_params(FakeGood, {"n": 2.5})
+
+
+@pytest.mark.parametrize("name", registry.list_methods())
+def test_quality_ladder_is_well_formed(name):
+    # a ladder (issue #14) is 3-5 distinct valid rungs, fast -> accurate, with the defaults among them
+    cls = registry.load_method(name)
+    ladder = cls.ladder
+    if not ladder:
+        return
+    assert 3 <= len(ladder) <= 5, f"{name}: {len(ladder)} rungs"
+    assert {} in [dict(r) for r in ladder], f"{name}: the defaults are not a rung"
+    resolved = [json.dumps(resolve_params(cls, r), sort_keys=True) for r in ladder]
+    assert len(set(resolved)) == len(resolved), f"{name}: two rungs resolve to the same parameters"
+    manual = sys.modules[cls.__module__].__doc__ or ""
+    assert "ladder" in manual.lower(), f"{name}: the manual does not list its quality ladder"

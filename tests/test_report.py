@@ -9,6 +9,7 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from bench import results as store
@@ -97,6 +98,11 @@ def test_report_with_references(run_with_refs):
     assert "<option value='relmse.indirect' selected>" in page
     assert "Rows not rendered" in page and "failed: method &#x27;flc&#x27; failed to load" in page
     assert (run_with_refs / "report" / "plots" / "time_error_0.svg").is_file()
+    # between-method matrices (direct vs manylights) and the paper table are on the page and as CSV
+    assert "Between methods: equal time, equal error" in page and "Time at equal error" in page
+    comp = pd.read_csv(run_with_refs / "report" / "data" / "comparisons.csv")
+    assert set(comp["method_a"]) == {"direct", "manylights"} and comp["ratio"].notna().any()
+    assert "Paper reproduction" in page
     view = json.loads((run_with_refs / "report" / "data" / "view_0.js").read_text().split("] = ", 1)[1].rstrip(";\n"))
     ind = view["components"]["indirect"]
     assert ind["reference"] == "ref_unshadowed" and ind["scale"]["abs"] > 0
@@ -237,3 +243,16 @@ def test_report_of_a_run_where_nothing_rendered(tmp_path):
                                    "status": "failed: method 'flc' failed to load"}])
     page = build_report(tmp_path).read_text()
     assert "No rendered rows" in page and "Rows not rendered" in page
+
+
+def test_scaling_fit_recovers_the_slope(tmp_path):
+    import pandas as pd
+    from reports import plots
+    # t = 2 n^0.5 (ms) over three series scenes, plus a scene outside the series
+    n = {"highpoly_10k": 1e4, "highpoly_1m": 1e6, "highpoly_10m": 1e7, "cornell_spot": 1e3}
+    rows = [{"scene": s, "view": "main", "method": "m", "frame_ms": 2 * v ** 0.5, "image_dir": f"images/{s}/main/m"}
+            for s, v in n.items()]
+    fits = plots.scaling_fits(pd.DataFrame(rows), n)
+    counts, times, slope = fits["m"]
+    assert slope == pytest.approx(0.5) and list(counts) == [1e4, 1e6, 1e7]
+    assert plots.scaling_plot(fits, tmp_path / "s.svg").is_file()

@@ -227,3 +227,63 @@ def test_corrupt_results_tables_are_detected(tmp_path):
     # and a run into that folder says so instead of dropping the rows
     with pytest.raises(ResultsError):
         run(cfg(tmp_path, out="t"), log=lambda m: None)
+
+
+def test_ladders_expand_to_rungs_and_param_overrides_them(tmp_path, monkeypatch):
+    from bench.runner import expand_param_sets
+    import bench.runner as runner_mod
+
+    class Laddered:
+        ladder = ({"n": 1}, {}, {"n": 9})
+    monkeypatch.setattr(runner_mod, "load_method", lambda name: Laddered)
+    base = dict(scenes=["x"], methods=["m"])
+    assert expand_param_sets(RunConfig(**base), "m") == [{}]                     # defaults only
+    assert expand_param_sets(RunConfig(**base, ladders=True), "m") == [{"n": 1}, {}, {"n": 9}]
+    assert expand_param_sets(RunConfig(**base, ladders=True, params={"m": [{"n": 4}]}), "m") == [{"n": 4}]
+
+
+def test_timing_settles_by_interval_budget_or_cap():
+    from bench.results import median_ci, timing_settled
+    steady = [10.0] * 8
+    noisy = [10.0, 30.0] * 4
+    assert not timing_settled(steady[:2], 3, 0.0, 1.0, 100, 0.05)          # never before the minimum
+    assert timing_settled(steady, 3, 0.0, 1.0, 100, 0.05)                  # tight interval
+    assert not timing_settled(noisy, 3, 0.1, 1.0, 100, 0.05)               # wide interval, budget left
+    assert timing_settled(noisy, 3, 1.5, 1.0, 100, 0.05)                   # budget spent
+    assert timing_settled(noisy, 3, 0.1, 1.0, 8, 0.05)                     # frame cap
+    lo, hi = median_ci(list(range(100)))
+    assert lo < 49.5 < hi and hi - lo < 25
+
+
+def test_calibrated_row_records_frames_phases_and_overhead(tmp_path):
+    df, runner = run(cfg(tmp_path, methods=["direct"], frames=3, timing_budget_s=0.2), log=lambda m: None)
+    rec = df.iloc[0]
+    samples = json.loads(rec["samples.frame_ms"])
+    assert len(samples) >= 3 and rec["extra.timing_frames"] == len(samples)
+    assert rec["prepare_ms"] >= 0 and rec["frames_total_ms"] >= sum(samples) - 1e-6
+    assert 0 <= rec["harness_overhead"] < 1 and rec["row_wall_ms"] > 0
+    manifest = json.loads((runner.run_dir / "manifest.json").read_text())
+    phases = manifest["phases_s"]
+    assert phases["timing"] > 0 and phases["scene_upload"] >= 0 and "references" in phases
+    assert 0 <= manifest["harness_overhead"] < 1
+    assert rec["peak_rss_mb"] > 10 and list(manifest["peak_rss_mb"].values()) == [pytest.approx(rec["peak_rss_mb"], abs=0.1)]
+
+
+def test_rows_of_a_scene_share_one_upload(tmp_path, monkeypatch):
+    import bench.gl
+    made = []
+    real = bench.gl.GpuScene
+
+    def counting(*a, **k):
+        made.append(1)
+        return real(*a, **k)
+    monkeypatch.setattr(bench.gl, "GpuScene", counting)
+    df, _ = run(cfg(tmp_path), log=lambda m: None)
+    assert list(df.status) == ["ok", "ok"] and len(made) == 1
+
+
+def test_shadow_resolution_follows_the_view():
+    from bench.runner import auto_shadow_resolution, effective_shadow_resolution
+    assert auto_shadow_resolution(320, 180) == 512 and auto_shadow_resolution(1280, 720) == 2048
+    assert auto_shadow_resolution(64, 48) == 256 and auto_shadow_resolution(513, 10) == 1024
+    assert effective_shadow_resolution(RunConfig(scenes=["x"], methods=["m"], shadow_resolution=128)) == 128

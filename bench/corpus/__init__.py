@@ -71,6 +71,8 @@ SCENES: dict[str, _Generator] = {g.name: g for g in (
                procedural.plan_highpoly, defaults=(("triangles", 1_000_000),)),
     _Generator("highpoly_4m", "noise-displaced terrain in a room, ~4M triangles (high-poly series)",
                procedural.plan_highpoly, defaults=(("triangles", 4_000_000),)),
+    _Generator("highpoly_10m", "noise-displaced terrain in a room, ~10M triangles (high-poly series)",
+               procedural.plan_highpoly, defaults=(("triangles", 10_000_000),)),
     _Generator("cornell_box", "McGuire's CornellBox-Original (real), ceiling emitter replaced by a spot light",
                real.plan_cornell_box, "real", "CC BY 3.0 (McGuire)"),
     _Generator("sponza", "Dabrovic Sponza atrium (real), sun from above and one lamp: open, lots of bounce",

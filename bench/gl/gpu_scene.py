@@ -30,13 +30,13 @@ class GpuScene:
         rng = np.random.default_rng(np.random.SeedSequence([self.seed, 0x6762656E]))
         self.vertex_random = rng.integers(0, 2**32, size=len(self.positions), dtype=np.uint64).astype(np.uint32)
 
-        self.vbo_position = ctx.buffer(self.positions.tobytes())
-        self.vbo_normal = ctx.buffer(self.normals.tobytes())
-        self.vbo_random = ctx.buffer(self.vertex_random.tobytes())
-        self.ibo = ctx.buffer(self.faces.tobytes())
+        self.vbo_position = ctx.buffer(self.positions)
+        self.vbo_normal = ctx.buffer(self.normals)
+        self.vbo_random = ctx.buffer(self.vertex_random)
+        self.ibo = ctx.buffer(self.faces)
         albedo4 = np.zeros((len(self.faces), 4), dtype=np.float32)
         albedo4[:, :3] = scene.albedo
-        self.triangle_albedo = ctx.buffer(albedo4.tobytes())
+        self.triangle_albedo = ctx.buffer(albedo4)
         self.lights = self._light_records()
         self.light_buffer = ctx.buffer(self.lights.tobytes())
         self._vaos: dict = {}

@@ -64,7 +64,18 @@ interleaved layout), `splat`, `unshuffle_blur` (unshuffle, blur, upsample, sum).
 | blur_normal_cos    | 0.9     | -1 .. 1      | blur/upsample: min cosine between the normals                 |
 | blur_plane_pixels  | 1.0     | 0 .. 1e4     | blur/upsample: max tangent-plane distance, in pixel footprints |
 | eps_rel            | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius              |
-| max_surfels        | 4e6     | 1 .. 1e8     | skip a scene whose surfel count exceeds this                  |
+| max_surfels        | 1.6e7   | 1 .. 1e8     | skip a scene whose surfel count exceeds this                  |
+
+Quality ladder (`gibench run`): (surfel_count, threshold) = (2048, 0.01), (8192, 0.002) (default),
+(32768, 0.0005): finer surfels and a farther cut radius together, as the paper's quality settings
+trade splat fill for accuracy.
+
+Scale: every triangle gives at least one surfel, so a 10M-triangle scene needs a 10M-surfel
+buffer (80 B each, 800 MB) beside its 1.1 GB triangle records; `max_surfels` (16M) bounds that.
+These buffers exceed the GL_MAX_SHADER_STORAGE_BLOCK_SIZE llvmpipe reports (128 MB) but are bound
+whole; llvmpipe and desktop GPUs (2 GB and more) address them (highpoly_4m, 320 MB of surfels:
+indirect mean within 2% of ir_unshadowed at 1024 VPLs). The cost is linear in the surfel count:
+the series' slope is in the report's cost-vs-triangles plot.
 """
 from __future__ import annotations
 
@@ -133,6 +144,7 @@ def level_layout(width: int, height: int, levels: int, interleave: int) -> tuple
 class DeepScreenSpace(MethodBase):
     name = "dss"
     summary = "Deep Screen Space: tessellated surfels of all geometry splatted to interleaved multi-resolution buffers"
+    ladder = ({"surfel_count": 2048, "threshold": 0.01}, {}, {"surfel_count": 32768, "threshold": 0.0005})
     stages = ("surfels", "deinterleave", "splat", "unshuffle_blur")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
     params = {
@@ -154,7 +166,7 @@ class DeepScreenSpace(MethodBase):
         "blur_plane_pixels": Param(1.0, "blur/upsample: maximum tangent-plane distance in pixel footprints",
                                    0.0, 1e4),
         "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
-        "max_surfels": Param(4_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
+        "max_surfels": Param(16_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
     }
 
     def prepare(self, gpu, scene, facts, params, view) -> None:

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench import metrics
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, check_gl
 from bench.method import resolve_params
 from bench.scene import compute_facts
@@ -38,9 +39,10 @@ from .levels import FlcLevels
 
 
 def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: float, chunk: int):
-    """(facts, areas, chunks) for the lit centroid VPLs of `manylights`' compute pass: the scene
+    """(facts, areas, chunks, median view distance) for the lit centroid VPLs of `manylights`' compute pass: the scene
     facts, the VPLs' triangle areas, and an iterator over pixel chunks of (contrib (pixels, vpls),
     summed over rgb with rho_x / pi; d (pixels, vpls))."""
+    from methods.flc.method import median_view_distance
     from methods.manylights.method import ManyLights
 
     facts = compute_facts(scene)
@@ -57,6 +59,7 @@ def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: floa
         check_gl(ctx, "flc analysis")
         vpl = np.frombuffer(ml.vpls.read(), dtype=np.float32).reshape(-1, 5, 4)[: gpu.triangle_count]
         g = passes.gbuffer.read()
+        seen = median_view_distance(gpu, view) or 0.0
     finally:
         ml.release()
         passes.release()
@@ -89,15 +92,21 @@ def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: floa
                 d = np.where(c > 0, dist / c, np.inf)
             yield contrib, d
 
-    return facts, area, chunks()
+    return facts, area, chunks(), seen
 
 
-def _levels(facts, flc_params: dict | None) -> tuple[FlcLevels, dict]:
-    from methods.flc.method import ForwardLightCuts
+def _levels(facts, flc_params: dict | None, scene, seen: float | None = None) -> tuple[FlcLevels, dict]:
+    """FLC's levels for `flc_params` as `prepare` makes them; `seen` is the median view distance
+    (dnear_rule "view"; None when there is no view)."""
+    from methods.flc.method import ForwardLightCuts, lit_area_for, near_radius
     p = resolve_params(ForwardLightCuts, flc_params)
+    if p["dnear_rule"] == "view" and seen is None:
+        raise ValueError("flc analysis: dnear_rule 'view' needs a view (use 'lit' or 'scene' here)")
+    lit = lit_area_for(scene, facts, p["dnear_factor"])
+    radius = near_radius(facts, p["dnear_rule"], p["dnear_factor"], lit, seen)
     return FlcLevels(facts.scene_radius, float(p["n_avg"]), p["mu"], p["levels"], p["dnear_factor"],
                      last_level_unbounded=bool(p["last_level_unbounded"]), reach=p["reach"],
-                     scene_area=float(facts.total_area_m2)), p
+                     scene_area=lit, near_radius=radius), p
 
 
 def _regular_pieces(scene, max_area: float):
@@ -129,16 +138,49 @@ def _regular_pieces(scene, max_area: float):
     return np.concatenate(cents), np.concatenate(norms), np.concatenate(areas)
 
 
+def _may_be_lit(tri: np.ndarray, lights) -> np.ndarray:
+    """Per triangle (T, 3, 3): can a light reach it (the divergent pass's conservative test,
+    `flc_patch_may_be_lit`: only spot lights' cones, against the bounding sphere)."""
+    if any(light.kind != "spot" for light in lights):
+        return np.ones(len(tri), dtype=bool)
+    centre = tri.mean(axis=1)
+    r = np.linalg.norm(tri - centre[:, None], axis=2).max(axis=1) * (1 + 1e-3) + 1e-6
+    out = np.zeros(len(tri), dtype=bool)
+    for light in lights:
+        v = centre - light.position
+        dist = np.linalg.norm(v, axis=1)
+        cos_phi = np.clip((v @ light.direction) / np.maximum(dist, 1e-300), -1.0, 1.0)
+        alpha = np.arcsin(np.clip(r / np.maximum(dist, 1e-300), 0.0, 1.0))
+        out |= (dist <= r) | (np.arccos(cos_phi) - alpha < np.radians(light.cutoff_angle_deg) + 1e-3)
+    return out
+
+
 def refined_scene(scene, max_edge: float):
-    """The scene with its triangles of area > max_edge^2 / 2 cut into edges <= max_edge (trimesh),
-    for a `manylights` reference of a scene with huge triangles (big_floor)."""
-    import trimesh
+    """The scene with its triangles of area > max_edge^2 / 2 that a light can reach cut (4-way,
+    recursively) until their edges are <= max_edge, for a `manylights` reference of a scene with
+    huge triangles (big_floor: one VPL per triangle). Pieces no light reaches (outside every
+    spot's cone) stay whole: their VPLs carry no power whatever their size."""
     from bench.scene import Scene
     big = scene.areas() > 0.5 * max_edge ** 2
-    v, f, idx = trimesh.remesh.subdivide_to_size(scene.vertices, scene.faces[big], max_edge=max_edge, return_index=True)
-    return Scene.build(scene.name + "_fine", np.concatenate([scene.vertices, v]),
-                       np.concatenate([scene.faces[~big], f + len(scene.vertices)]),
-                       np.concatenate([scene.albedo[~big], scene.albedo[big][idx]]), scene.lights, scene.cameras)
+    tri = scene.vertices[scene.faces[big]].astype(np.float64)
+    parent = np.nonzero(big)[0]
+    done_tri, done_parent = [], []
+    while len(tri):
+        edge = np.linalg.norm(tri - np.roll(tri, 1, axis=1), axis=2).max(axis=1)
+        split = (edge > max_edge) & _may_be_lit(tri, scene.lights)
+        done_tri.append(tri[~split])
+        done_parent.append(parent[~split])
+        t, parent = tri[split], parent[split]
+        a, b, c = t[:, 0], t[:, 1], t[:, 2]
+        ab, bc, ca = 0.5 * (a + b), 0.5 * (b + c), 0.5 * (c + a)
+        tri = np.concatenate([np.stack(q, axis=1) for q in ((a, ab, ca), (ab, b, bc), (ca, bc, c), (ab, bc, ca))])
+        parent = np.tile(parent, 4)
+    pieces, owner = np.concatenate(done_tri), np.concatenate(done_parent)
+    n = len(scene.vertices)
+    faces = (np.arange(3 * len(pieces)) + n).reshape(-1, 3)
+    return Scene.build(scene.name + "_fine", np.concatenate([scene.vertices, pieces.reshape(-1, 3)]),
+                       np.concatenate([scene.faces[~big], faces]),
+                       np.concatenate([scene.albedo[~big], scene.albedo[owner]]), scene.lights, scene.cameras)
 
 
 def count_vpls_reaching(scene, flc_params: dict | None = None, receivers: int = 256, seed: int = 0) -> dict:
@@ -147,7 +189,7 @@ def count_vpls_reaching(scene, flc_params: dict | None = None, receivers: int = 
     the emitter, i.e. the maximum of eq. 12). Returns 'per_level' (mean count of level-k VPLs
     with f^k(d) > 0 at a receiver, k = 0..N), 'total' (their sum) and 'levels'."""
     facts = compute_facts(scene)
-    levels, _ = _levels(facts, flc_params)
+    levels, _ = _levels(facts, flc_params, scene)
     rng = np.random.default_rng(seed)
     y, n, area = _regular_pieces(scene, levels.divergent_area)
     level = levels.level_of(rng.random(len(area)), area)
@@ -177,8 +219,8 @@ def energy_beyond_support(ctx, scene, camera: str, width: int, height: int, flc_
                           eps_rel: float = 1e-4, chunk: int = 256) -> dict:
     """{'share_beyond_DN', 'D_N_m', 'total'}: share of the summed indirect radiance (all pixels)
     coming from pairs with d > D_N for FLC's parameters `flc_params` (defaults otherwise)."""
-    facts, _area, chunks = _exact_pairs(ctx, scene, camera, width, height, eps_rel, chunk)
-    levels, _ = _levels(facts, flc_params)
+    facts, _area, chunks, seen = _exact_pairs(ctx, scene, camera, width, height, eps_rel, chunk)
+    levels, _ = _levels(facts, flc_params, scene, seen)
     d_n = float(levels.d[levels.levels])
     total = beyond = 0.0
     for contrib, d in chunks:
@@ -195,8 +237,8 @@ def level_statistics(ctx, scene, camera: str, width: int, height: int, flc_param
     triangles), 'S_m2', 'D_m'; and the relative standard deviation of the image mean that the
     module docstring's variance predicts for one sub-frame ('relative_std_subframe') and for one
     render of `progressive_frames` sub-frames ('relative_std')."""
-    facts, area, chunks = _exact_pairs(ctx, scene, camera, width, height, eps_rel, chunk)
-    levels, p = _levels(facts, flc_params)
+    facts, area, chunks, seen = _exact_pairs(ctx, scene, camera, width, height, eps_rel, chunk)
+    levels, p = _levels(facts, flc_params, scene, seen)
     s = levels.s
     per_tri = np.zeros((levels.levels + 1, len(area)))   # C_tk
     exact = 0.0
@@ -216,12 +258,15 @@ def level_statistics(ctx, scene, camera: str, width: int, height: int, flc_param
 
 def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=range(8),
                        flc_params: dict | None = None, jitter_frames: int = 16, reference_seed: int = 99,
-                       reference_scene=None) -> dict:
+                       reference_scene=None, reference_image=None) -> dict:
     """One FLC frame per seed against `manylights` with the FLC lobe and `jitter_frames` jittered
     VPL positions (the sum FLC is unbiased for; see method.py), rendered on `reference_scene` if
     given (the same surfaces finer cut: `manylights` has one VPL per triangle, so a scene of huge
-    triangles needs many jitter frames). Returns per-seed 'ratio' (image
-    mean of FLC's indirect / the reference's), 'relmse' (against the reference), 'splat_ms'
+    triangles needs many jitter frames), or `reference_image` (H x W x 3) when given (a reference
+    already rendered: returned as 'reference'). Returns per-seed 'ratio' (image
+    mean of FLC's indirect / the reference's), 'relmse' (against the reference: mean squared error
+    over mean squared reference), 'relmse_pixel' (the report's per-pixel relMSE, `bench.metrics`)
+    and 'relmse_pixel_black' (what an image without indirect light, `direct`, scores), 'splat_ms'
     (regular + divergent + upscale_blur GPU time), the mean ratio 'ratio_mean', the relative
     spread 'ratio_spread' (std / mean over the seeds) and 'reference_mean'."""
     from bench.harness import run_method
@@ -230,17 +275,25 @@ def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=r
 
     facts = compute_facts(scene)
     ref_scene = scene if reference_scene is None else reference_scene
-    ref = run_method(ctx, ManyLights, ref_scene, camera, width, height, {"emission": "flc", "jitter_frames": jitter_frames},
-                     seed=reference_seed, frames=1, facts=compute_facts(ref_scene)).indirect.astype(np.float64)
-    ratio, relmse, splat = [], [], []
+    if reference_image is not None:
+        ref = np.asarray(reference_image, dtype=np.float64)
+        if ref.shape != (height, width, 3):
+            raise ValueError(f"flc study: reference_image has shape {ref.shape}, expected {(height, width, 3)}")
+    else:
+        ref = run_method(ctx, ManyLights, ref_scene, camera, width, height,
+                         {"emission": "flc", "jitter_frames": jitter_frames}, seed=reference_seed, frames=1,
+                         facts=compute_facts(ref_scene)).indirect.astype(np.float64)
+    ratio, relmse, relmse_pixel, splat = [], [], [], []
     for s in seeds:
         r = run_method(ctx, ForwardLightCuts, scene, camera, width, height, flc_params, seed=s, frames=1, facts=facts)
         img = r.indirect.astype(np.float64)
         ratio.append(img.mean() / ref.mean())
         relmse.append(float(((img - ref) ** 2).mean() / (ref ** 2).mean()))
+        relmse_pixel.append(metrics.relmse(img, ref))
         splat.append(sum(float(np.median(r.stage_ms[k])) for k in ("regular", "divergent", "upscale_blur")
                          if k in r.stage_ms))
     ratio = np.asarray(ratio)
-    return {"ratio": ratio, "relmse": np.asarray(relmse), "splat_ms": np.asarray(splat),
+    return {"ratio": ratio, "relmse": np.asarray(relmse), "relmse_pixel": np.asarray(relmse_pixel),
+            "relmse_pixel_black": metrics.relmse(np.zeros_like(ref), ref), "splat_ms": np.asarray(splat),
             "ratio_mean": float(ratio.mean()), "ratio_spread": float(ratio.std(ddof=1) / ratio.mean()) if len(ratio) > 1 else 0.0,
-            "reference_mean": float(ref.mean())}
+            "reference_mean": float(ref.mean()), "reference": ref}

@@ -57,17 +57,21 @@ under the model; `analysis.count_vpls_reaching` measures it on a scene.
 Level set (`levels = -1`, the default). A level-k VPL stands for S_k of surface, so when S_k
 is several m^2 a frame rests on a handful of powerful VPLs (the paper's "spikes"); and with the
 last level unbounded every top-level VPL lights every pixel, so the top level gives each pixel
-A_scene / S_N VPLs whatever the reach (its lit ones cost a full-screen splat each). N is the
-fewest levels whose top level holds at most TOP_LEVEL_BUDGET (32) N_avg VPLs in the scene, and
-never more than the reach needs (D_N >= R_scene; beyond, more levels would only move the far
-field onto fewer VPLs):
+A_lit / S_N lit VPLs whatever the reach (each costs a full-screen splat; unlit ones splat
+nothing). N is the fewest levels whose top level holds at most TOP_LEVEL_BUDGET (32) N_avg lit
+VPLs, and never more than the reach needs (D_N >= R_scene; beyond, more levels would only move
+the far field onto fewer VPLs):
 
-    N = min( ceil(log_mu (R_scene / D_0)^2),  ceil(log_mu (A_scene / (32 N_avg S_0))) ),  N >= 0
+    N = min( ceil(log_mu (R_scene / D_0)^2),  ceil(log_mu (A_lit / (32 N_avg S_0))) ),  N >= 0
 
-(A_scene / (N_avg S_0) = A_scene / (4 pi D_near^2), independent of N_avg for eq1_intent.) At
-the defaults (mu 4, D_near 0.2 R) N = 0 on the benchmark's default scenes, sibenik and
-conference (A_scene <= 32 x 4 pi D_near^2) and 1 on sponza; the hierarchy pays off on scenes
-whose area is large against D_near^2.
+(`scene_area` is A_lit, the area a light's emission reaches, `lit_area`: A_scene unless every
+light is a spot. A_lit / (N_avg S_0) = A_lit / (4 pi D_near^2), independent of N_avg for
+eq1_intent.) At the defaults (mu 4, D_near 0.2 R) N = 0 on the benchmark's default scenes,
+sibenik and conference (A_lit <= 32 x 4 pi D_near^2) and 1 on sponza; the hierarchy pays off
+on scenes whose lit area is large against D_near^2.
+
+D_near (`near_radius`): D_near = dnear_factor * R with R = R_scene (the paper) or the smaller
+R that method.py's D_near rule gives (4 pi D_near^2 <= A_lit by default).
 """
 from __future__ import annotations
 
@@ -92,10 +96,12 @@ def _reach_scale(reach: str, n_avg: float) -> float:
 
 
 def auto_levels(scene_radius: float, n_avg: float, mu: float, dnear_factor: float, reach: str = "eq1_intent",
-                scene_area: float | None = None) -> int:
+                scene_area: float | None = None, near_radius: float | None = None) -> int:
     """The default level set (module docstring, "Level set"): the smallest N with D_N >= R_scene,
-    lowered until the top level holds at least N_avg VPLs in the scene (S_N <= A_scene / N_avg)."""
-    s0 = 4.0 * np.pi * (dnear_factor * scene_radius) ** 2 / n_avg
+    lowered until the top level holds at most TOP_LEVEL_BUDGET N_avg VPLs on `scene_area` (A_lit).
+    D_near = dnear_factor * near_radius (R_scene when None)."""
+    radius = scene_radius if near_radius is None else near_radius
+    s0 = 4.0 * np.pi * (dnear_factor * radius) ** 2 / n_avg
     d0 = _reach_scale(reach, n_avg) * np.sqrt(s0)
     n = 0 if d0 >= scene_radius else int(np.ceil(2.0 * np.log(scene_radius / d0) / np.log(mu) - 1e-9))
     if scene_area is not None and scene_area > 0:
@@ -114,7 +120,8 @@ class FlcLevels:
     dnear_factor: float = 0.2
     last_level_unbounded: bool = True
     reach: str = "eq1_intent"
-    scene_area: float | None = None   # total surface area: bounds the automatic top level
+    scene_area: float | None = None   # lit area A_lit (method.py): bounds the automatic top level
+    near_radius: float | None = None  # R of D_near = dnear_factor R (R_scene when None; see method.py)
 
     def __post_init__(self):
         if not (self.scene_radius > 0 and np.isfinite(self.scene_radius)):
@@ -122,16 +129,20 @@ class FlcLevels:
         if not self.mu > 1.0:
             raise ValueError(f"flc: mu must be > 1 (levels of increasing size), got {self.mu}")
         _reach_scale(self.reach, self.n_avg)
+        if self.near_radius is not None and not (self.near_radius > 0 and np.isfinite(self.near_radius)):
+            raise ValueError(f"flc: near radius (R of D_near) must be > 0, got {self.near_radius}")
         if self.levels == -1:
             object.__setattr__(self, "levels", auto_levels(self.scene_radius, self.n_avg, self.mu,
-                                                           self.dnear_factor, self.reach, self.scene_area))
+                                                           self.dnear_factor, self.reach, self.scene_area,
+                                                           self.near_radius))
         if not 0 <= self.levels < MAX_LEVELS:
             raise ValueError(f"flc: levels N must be -1 (auto) or in [0, {MAX_LEVELS - 1}], got {self.levels}")
 
     # ------------------------------------------------------------------ constants
     @property
     def d_near(self) -> float:
-        return self.dnear_factor * self.scene_radius
+        """D_near = dnear_factor * R, R = near_radius (method.py's D_near rule) or R_scene."""
+        return self.dnear_factor * (self.scene_radius if self.near_radius is None else self.near_radius)
 
     @property
     def s0(self) -> float:
@@ -232,6 +243,44 @@ class FlcLevels:
 
 
 def presplit_count(area, fmax_top: float, target_area: float) -> np.ndarray:
-    """m such that each of the m^2 equal sub-patches of a triangle fits the top tessellation level."""
+    """m such that each of the m^2 equal sub-patches of a triangle is made regular by the
+    tessellation level whose largest piece is the fraction `fmax_top` of the patch."""
     area = np.asarray(area, float)
     return np.maximum(1, np.ceil(np.sqrt(area * fmax_top / target_area))).astype(np.int64)
+
+
+def lit_area(scene, piece_area: float, max_split: int = 64) -> float:
+    """Area of the surface a light's emission reaches, occlusion ignored (m^2): every surface
+    when the scene has a point or directional light (two-sided surfaces face any light not seen
+    edge-on), else the part inside a spot light's cutoff cone, measured on the triangles cut into
+    m^2 equal pieces of at most `piece_area` (m <= max_split), a piece counting when its centroid
+    is inside a cone."""
+    if not piece_area > 0:
+        raise ValueError(f"flc: lit_area piece_area must be > 0, got {piece_area}")
+    area = scene.areas().astype(np.float64)
+    if any(light.kind != "spot" for light in scene.lights):
+        return float(area.sum())
+    tri = scene.vertices[scene.faces].astype(np.float64)
+    m_all = np.clip(np.ceil(np.sqrt(area / piece_area)), 1, max_split).astype(np.int64)
+    lit = 0.0
+    for m in np.unique(m_all):
+        sel = np.nonzero(m_all == m)[0]
+        bc = []   # barycentric (beta, gamma) of the m^2 sub-triangle centroids
+        for i in range(m):
+            for j in range(m - i):
+                bc.append(((i + 1 / 3) / m, (j + 1 / 3) / m))
+                if j < m - i - 1:
+                    bc.append(((i + 2 / 3) / m, (j + 2 / 3) / m))
+        bc = np.asarray(bc)
+        for start in range(0, len(sel), max(1, 2_000_000 // len(bc))):
+            part = sel[start:start + max(1, 2_000_000 // len(bc))]
+            a, e1, e2 = tri[part, 0], tri[part, 1] - tri[part, 0], tri[part, 2] - tri[part, 0]
+            c = a[:, None] + bc[None, :, :1] * e1[:, None] + bc[None, :, 1:] * e2[:, None]   # (t, m^2, 3)
+            inside = np.zeros(c.shape[:2], dtype=bool)
+            for light in scene.lights:
+                v = c - light.position
+                dist = np.linalg.norm(v, axis=-1)
+                cos_theta = (v @ light.direction) / np.maximum(dist, 1e-300)
+                inside |= cos_theta > np.cos(np.radians(light.cutoff_angle_deg))
+            lit += float((inside.sum(1) * area[part] / len(bc)).sum())
+    return lit

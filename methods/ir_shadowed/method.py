@@ -38,6 +38,15 @@ The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels; a combination
 the GL's maximum texture size is refused with an error naming both parameters.
 Stages: `vpl_sample`, `vpl_shadow_maps`, `gather` (after the shared `gbuffer_shadow`,
 `direct_light`, `rsm`).
+
+Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024 (VAL's VPL count); one shadow map
+per VPL makes the cost linear in the count, so 4096 (seconds per frame here) is left to `--param`.
+Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_count x triangles
+triangle draws (sponza at 64 VPLs: 4.2M, ~2 s per frame on llvmpipe); a row above
+`max_triangle_draws` (default 1e7) is skipped with that figure rather than run for minutes.
+
+Stress limit params:shadow_resolution=512: 256 VPLs x 5 hemicube faces of 512^2 need an atlas
+larger than GL_MAX_TEXTURE_SIZE; prepare() refuses it with one line naming both parameters.
 """
 from __future__ import annotations
 
@@ -48,7 +57,7 @@ import moderngl
 
 from bench.gl import load_program, set_uniforms
 from bench.gl.context import park
-from bench.method import FrameOutput, MethodBase, Param, ParamError
+from bench.method import FrameOutput, MethodBase, Param, ParamError, SkipRow
 from methods.ir_unshadowed.method import CLAMP_DOC, VPL_COUNT_DOC
 from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler, VplGather
 
@@ -121,6 +130,7 @@ class HemicubeAtlas:
 class InstantRadiosityShadowed(MethodBase):
     name = "ir_shadowed"
     summary = "Instant radiosity, RSM-sampled VPLs with hemicube shadow maps (indirect visibility)"
+    ladder = ({"vpl_count": 64}, {}, {"vpl_count": 1024})
     stages = ("vpl_sample", "vpl_shadow_maps", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
     params = {
@@ -130,10 +140,18 @@ class InstantRadiosityShadowed(MethodBase):
         "normal_offset": Param(0.5, "receiver offset along its geometric normal for the VPL shadow test, "
                                     "in hemicube texel footprints at the receiver", 0.0, 16.0),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
+        "max_triangle_draws": Param(10_000_000, "skip the row when vpl_count x triangles exceeds this (the "
+                                                "hemicubes draw the whole scene once per VPL every frame)",
+                                    1, 10_000_000_000),
     }
 
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
+        draws = int(params["vpl_count"]) * int(gpu.triangle_count)
+        if draws > params["max_triangle_draws"]:
+            raise SkipRow(f"scene '{scene.name}': {params['vpl_count']} VPL shadow maps x {gpu.triangle_count} "
+                          f"triangles = {draws:,d} triangle draws per frame, over max_triangle_draws="
+                          f"{params['max_triangle_draws']:,d}")
         self.ctx = gpu.ctx
         self.eps = params["clamp_distance_rel"] * gpu.radius
         self.hemicubes = HemicubeAtlas(gpu, params["vpl_count"], params["shadow_resolution"])

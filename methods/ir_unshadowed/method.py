@@ -35,6 +35,9 @@ bias near corners; the default is tiny, i.e. almost unbiased and noisy there.
 | clamp_distance_rel | 1e-4    | 1e-7 .. 1    | eps of max(eps, d), relative to the scene radius        |
 
 Stages: `vpl_sample`, `gather` (after the shared `gbuffer_shadow`, `direct_light`, `rsm`).
+
+Quality ladder (`gibench run`): vpl_count 16, 64, 256 (default), 1024: the gather costs VPLs x
+pixels and the variance falls as 1 / VPLs, so the count is the knob a user turns.
 """
 from __future__ import annotations
 
@@ -49,6 +52,7 @@ CLAMP_DOC = "distance clamp eps of max(eps, |x - y|) relative to the scene radiu
 class InstantRadiosityUnshadowed(MethodBase):
     name = "ir_unshadowed"
     summary = "Instant radiosity, VPLs importance-sampled from the RSM, no indirect visibility"
+    ladder = ({"vpl_count": 16}, {"vpl_count": 64}, {}, {"vpl_count": 1024})
     stages = ("vpl_sample", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
     params = {

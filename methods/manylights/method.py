@@ -41,6 +41,9 @@ that side receives. The cost is O(pixels x triangles x J): a yardstick baseline,
 |                |         |              | > 1: converges to the continuous integral)       |
 | eps_rel        | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius |
 | max_triangles  | 2e6     | 1 .. 1e8     | skip larger scenes (the cost is pixels x T)      |
+
+Stress limit params:jitter_frames=4096: 4096 jittered VPL sets summed in one frame by design (the
+converged reference of the jittered sum); minutes per frame on llvmpipe, over the stress timeout.
 """
 from __future__ import annotations
 

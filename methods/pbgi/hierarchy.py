@@ -1,12 +1,23 @@
-"""The emitter hierarchy of `pbgi`: a quadtree of each chart's lightmap texels, laid out in
-depth-first (pre-)order with skip links, so that a receiver walks it without a stack.
+"""The emitter hierarchy of `pbgi`: one tree over every lightmap texel (surfel) of the scene,
+across charts, laid out in depth-first (pre-)order with skip links, so that a receiver walks
+it without a stack.
 
-The leaves are the covered texels of a chart, ordered by chart, then by the Morton (Z-order)
-code of their texel coordinates inside the chart's box: a 2^l x 2^l block of the chart is then
-a contiguous range [lo, hi) of leaves. Every block of every level that holds a texel is a node,
-up to one root per chart; a block with the same texels as its only child block is the same
-node (kept once, at its lowest level). In pre-order (lo ascending, ancestors first) the
-subtree of node i is the contiguous range [i, skip[i]) of node indices, which gives:
+The article's closing suggestion is "a quad tree of the geometry". A tree per chart does not
+aggregate across charts: a real scene has thousands of small charts (sponza 7,000, most of a
+texel or two), so every receiver visited at least one node per chart and the cost went back to
+O(texels x charts). Here the tree is an octree of the surfels' positions (the 3-D form of the
+quadtree), under one root per normal class:
+
+- class: the dominant axis and sign of the texel's normal (the six classes of the planar
+  unwrap): every node's normals lie within 55 degrees of its axis, so its leaves' cosines
+  towards a receiver rarely differ in sign (see emitter_hierarchy.glsl for why that matters);
+- then the Morton (Z-order) code of the position quantised to 2^21 cells per axis in the
+  scene's bounding cube: a cube of the octree is a contiguous range [lo, hi) of leaves.
+
+Every cube of every level that holds a texel is a node; a cube with the same texels as its
+only child cube is the same node (kept once, at its lowest level); level 0 is the texels
+themselves, so a leaf is exactly a node with one texel. In pre-order (lo ascending, ancestors
+first) the subtree of node i is the contiguous range [i, skip[i]) of node indices, which gives:
 
 - a stackless walk: at node i either use the node (its aggregate stands for all its leaves)
   and go to skip[i], or refine and go to i + 1 (its first child);
@@ -16,7 +27,10 @@ subtree of node i is the contiguous range [i, skip[i]) of node indices, which gi
   the leaves [k0, k1) are the nodes [leaf_start[k0], leaf_start[k1]).
 
 Node aggregates are built on the GL every frame (emitter_hierarchy.glsl), level by level from
-the leaves up; a node reads its children as j = i + 1, skip[j], ... while j < skip[i].
+the leaves up (a parent's lowest level is above each child's); a node reads its children as
+j = i + 1, skip[j], ... while j < skip[i]. Receivers are grouped in tiles of at most
+`tile_texels` consecutive leaves (receiver_tiles): sibling cubes, so a tile is compact in space
+whatever chart its texels come from.
 """
 from __future__ import annotations
 
@@ -24,17 +38,28 @@ from dataclasses import dataclass
 
 import numpy as np
 
+MORTON_BITS = 21   # per axis: 63 bits of code
 
-def morton2(x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Interleaved bits of non-negative ints x, y < 2^16 (x in the even bits)."""
+
+def morton3(q: np.ndarray) -> np.ndarray:
+    """Interleaved bits of non-negative int coordinates q (E, 3) < 2^21 (x in bit 0)."""
     def spread(v):
-        v = np.asarray(v, dtype=np.uint64) & np.uint64(0xFFFF)
-        v = (v | (v << np.uint64(8))) & np.uint64(0x00FF00FF)
-        v = (v | (v << np.uint64(4))) & np.uint64(0x0F0F0F0F)
-        v = (v | (v << np.uint64(2))) & np.uint64(0x33333333)
-        v = (v | (v << np.uint64(1))) & np.uint64(0x55555555)
+        v = np.asarray(v, dtype=np.uint64) & np.uint64(0x1FFFFF)
+        v = (v | (v << np.uint64(32))) & np.uint64(0x1F00000000FFFF)
+        v = (v | (v << np.uint64(16))) & np.uint64(0x1F0000FF0000FF)
+        v = (v | (v << np.uint64(8))) & np.uint64(0x100F00F00F00F00F)
+        v = (v | (v << np.uint64(4))) & np.uint64(0x10C30C30C30C30C3)
+        v = (v | (v << np.uint64(2))) & np.uint64(0x1249249249249249)
         return v
-    return (spread(x) | (spread(y) << np.uint64(1))).astype(np.int64)
+    q = np.asarray(q)
+    return (spread(q[:, 0]) | (spread(q[:, 1]) << np.uint64(1)) | (spread(q[:, 2]) << np.uint64(2))).astype(np.int64)
+
+
+def normal_class(normal: np.ndarray) -> np.ndarray:
+    """Dominant axis and sign of each normal (E, 3): 2 axis + (component >= 0), in 0..5."""
+    normal = np.asarray(normal, dtype=np.float64)
+    axis = np.argmax(np.abs(normal), axis=1)
+    return (2 * axis + (normal[np.arange(len(normal)), axis] >= 0)).astype(np.int64)
 
 
 @dataclass
@@ -42,13 +67,11 @@ class EmitterTree:
     leaf_order: np.ndarray   # (E,) permutation: leaf k is input texel leaf_order[k]
     lo: np.ndarray           # (N,) first leaf of each node (pre-order)
     hi: np.ndarray           # (N,) one past its last leaf
-    level: np.ndarray        # (N,) quadtree level (0: a texel)
+    level: np.ndarray        # (N,) octree level (0: a texel)
     skip: np.ndarray         # (N,) index of the node after its subtree
     leaf_start: np.ndarray   # (E + 1,) first node (pre-order) whose leaves start at leaf k; [E] = N
     level_nodes: np.ndarray  # (N,) node indices grouped by level, ascending
     level_offsets: np.ndarray  # (levels + 1,) group boundaries in level_nodes
-    leaf_code: np.ndarray    # (E,) Morton code of each leaf in its chart's box
-    leaf_chart: np.ndarray   # (E,) chart of each leaf
 
     @property
     def node_count(self) -> int:
@@ -58,43 +81,76 @@ class EmitterTree:
     def leaf_count(self) -> int:
         return int(len(self.leaf_order))
 
-    def receiver_tiles(self, xs: np.ndarray, ys: np.ndarray, tile_level: int):
-        """The 2^L x 2^L blocks of each chart (L = tile_level) as receiver tiles: (node index of
-        the block, (x0, y0, x1, y1) lightmap pixel box) per tile. xs, ys: texels in leaf order."""
-        starts = np.flatnonzero(np.r_[True, self._block_change(tile_level)])
-        ends = np.r_[starts[1:], self.leaf_count]
-        index = {(int(a), int(b)): i for i, (a, b) in enumerate(zip(self.lo, self.hi))}
-        nodes = np.array([index[(int(a), int(b))] for a, b in zip(starts, ends)], dtype=np.int64)
-        boxes = np.column_stack([np.minimum.reduceat(xs, starts), np.minimum.reduceat(ys, starts),
-                                 np.maximum.reduceat(xs, starts) + 1, np.maximum.reduceat(ys, starts) + 1])
-        return nodes, boxes
+    @property
+    def roots(self) -> np.ndarray:
+        """Top nodes (one per normal class present), in pre-order."""
+        out, i = [], 0
+        while i < self.node_count:
+            out.append(i)
+            i = int(self.skip[i])
+        return np.asarray(out, dtype=np.int64)
 
-    def _block_change(self, level: int) -> np.ndarray:
-        block = self.leaf_code >> np.int64(2 * level)
-        return (block[1:] != block[:-1]) | (self.leaf_chart[1:] != self.leaf_chart[:-1])
+    def children(self, i: int) -> list[int]:
+        out, j = [], i + 1
+        while j < self.skip[i]:
+            out.append(j)
+            j = int(self.skip[j])
+        return out
+
+    def receiver_tiles(self, tile_texels: int) -> np.ndarray:
+        """(T, 2) first leaf and leaf count of each receiver tile: the largest nodes of at most
+        `tile_texels` leaves, consecutive siblings merged while they fit. Tiles partition the
+        leaves in order."""
+        tiles: list[tuple[int, int]] = []
+
+        def visit(siblings):
+            run_lo = run_hi = -1
+            for j in siblings:
+                size = int(self.hi[j] - self.lo[j])
+                if size > tile_texels:
+                    if run_lo >= 0:
+                        tiles.append((run_lo, run_hi - run_lo))
+                    run_lo = run_hi = -1
+                    visit(self.children(j))
+                    continue
+                if run_lo >= 0 and int(self.hi[j]) - run_lo > tile_texels:
+                    tiles.append((run_lo, run_hi - run_lo))
+                    run_lo = -1
+                if run_lo < 0:
+                    run_lo = int(self.lo[j])
+                run_hi = int(self.hi[j])
+            if run_lo >= 0:
+                tiles.append((run_lo, run_hi - run_lo))
+
+        visit(self.roots)
+        return np.asarray(tiles, dtype=np.int64).reshape(-1, 2)
 
     def node_range(self, first_leaf: int, end_leaf: int) -> tuple[int, int]:
         """Node indices [first, end) whose walk covers exactly the leaves [first_leaf, end_leaf)."""
         return int(self.leaf_start[first_leaf]), int(self.leaf_start[end_leaf])
 
 
-def build_tree(xs: np.ndarray, ys: np.ndarray, chart: np.ndarray, chart_box: np.ndarray) -> EmitterTree:
-    """Quadtree over covered texels (xs, ys) of charts `chart`, boxes (x0, y0, w, h) per chart."""
-    xs, ys, chart = (np.asarray(a, dtype=np.int64) for a in (xs, ys, chart))
-    if len(xs) == 0:
+def build_tree(position: np.ndarray, normal: np.ndarray) -> EmitterTree:
+    """Octree (per normal class) over the surfels at `position` (E, 3) with normals (E, 3)."""
+    position = np.asarray(position, dtype=np.float64)
+    if position.ndim != 2 or position.shape[1] != 3 or len(position) == 0:
         raise ValueError("pbgi: no covered lightmap texel to build an emitter hierarchy from")
-    box = np.asarray(chart_box, dtype=np.int64)
-    lx, ly = xs - box[chart, 0], ys - box[chart, 1]
-    code = morton2(lx, ly)
-    order = np.lexsort((code, chart))
-    code, chart_sorted = code[order], chart[order]
+    if not np.all(np.isfinite(position)):
+        raise ValueError("pbgi: a lightmap texel has a non-finite position")
+    cls = normal_class(normal)
+    low = position.min(axis=0)
+    extent = max(float((position.max(axis=0) - low).max()), 1e-30)
+    cells = (1 << MORTON_BITS) - 1
+    q = np.clip(np.floor((position - low) / extent * cells), 0, cells).astype(np.int64)
+    code = morton3(q)
+    order = np.lexsort((code, cls))
+    code, cls = code[order], cls[order]
     count = len(order)
-    side = int(max(box[:, 2].max(), box[:, 3].max()))
-    top = max(int(np.ceil(np.log2(max(side, 1)))), 0)
-    los, his, levels = [], [], []
-    for level in range(top + 1):
-        block = code >> np.int64(2 * level)
-        new = np.r_[True, (block[1:] != block[:-1]) | (chart_sorted[1:] != chart_sorted[:-1])]
+    los, his, levels = [np.arange(count)], [np.arange(1, count + 1)], [np.zeros(count, dtype=np.int64)]
+    for level in range(1, MORTON_BITS + 2):   # level l: cubes of code >> 3 (l - 1); the last: the class
+        shift = 3 * (level - 1)
+        block = code >> np.int64(shift) if shift < 63 else np.zeros_like(code)
+        new = np.r_[True, (block[1:] != block[:-1]) | (cls[1:] != cls[:-1])]
         starts = np.flatnonzero(new)
         los.append(starts)
         his.append(np.r_[starts[1:], count])
@@ -110,5 +166,4 @@ def build_tree(xs: np.ndarray, ys: np.ndarray, chart: np.ndarray, chart_box: np.
     level_nodes = np.argsort(level, kind="stable").astype(np.int64)
     level_offsets = np.searchsorted(level[level_nodes], np.arange(int(level.max()) + 2), side="left")
     return EmitterTree(leaf_order=order, lo=lo, hi=hi, level=level, skip=skip, leaf_start=leaf_start,
-                       level_nodes=level_nodes, level_offsets=level_offsets.astype(np.int64),
-                       leaf_code=code, leaf_chart=chart_sorted)
+                       level_nodes=level_nodes, level_offsets=level_offsets.astype(np.int64))

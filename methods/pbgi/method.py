@@ -19,21 +19,34 @@ camera view reads the lightmap. Passes:
    each side (bench/gl/shaders/direct_lighting.glsl, shared shadow maps), stored as a surfel:
    position, normal, world area, radiosity B = rho E of each side.
 3. `emitter_hierarchy` (`gather=hierarchy`; skipped with `all_pairs`): the article's closing
-   suggestion against O(n^2), "a quad tree of the geometry": a quadtree of each chart's
-   texels (hierarchy.py, topology built in prepare), its nodes rebuilt every frame from the
-   surfels, level by level: summed area, area-weighted mean position, normal and radiosity of
-   each side (the emitted power sum a B is conserved exactly), a bounding radius and a flag
-   "flat" (all leaves share the node's normal and plane).
+   suggestion against O(n^2), "a quad tree of the geometry", as one tree over every texel of
+   the scene (hierarchy.py, topology built in prepare): an octree of the surfels' positions (the
+   3-D form of the quadtree) under one root per normal class (dominant axis and sign, as the
+   unwrap's charts). A tree per chart (the first version) does not aggregate across charts: a
+   real scene has thousands of small charts (sponza 7,300, conference 18,000, most of a texel or
+   two), every receiver visited at least one node per chart and the receiver tiles were per
+   chart (one workgroup per one-texel chart): sponza's gather took ~26 s per frame. The nodes
+   are rebuilt every frame from the surfels, level by level: summed area, area-weighted centroid
+   and mean normal, a bounding radius, a flag "flat" (every leaf on the node's plane with its
+   normal), and the power the leaves send towards a direction w, exactly as a sum over the
+   leaves: P(w) = w . D + |w . S| per colour, D = sum a (B_front - B_back) / 2 n and
+   S = sum a (B_front + B_back) / 2 n (emitter_hierarchy.glsl; exact whenever the leaves face w
+   on one side, always for a flat node, where it is the disk a B |cos_e|; the emitted power is
+   conserved).
 4. `gather`: receivers sum emitters with Bunnell's disk-to-point transfer
    a |cos_e| |cos_r| / (pi d^2 + a) into the irradiance of the side facing the emitter.
    `all_pairs`: every texel from every texel (the article's loop). `hierarchy`: one workgroup
-   per receiver tile (an 8 x 8 texel block of a chart, a node of the same tree) walks the
-   emitter tree without a stack; a node is used whole when its bounding radius is below
-   `refine_ratio` times its distance to the tile's bounding sphere, else refined down to the
-   texels (always summed exactly); a flat node whose plane holds the (flat) tile is skipped,
-   since each of its texels sees the tile at cos_e = 0. As `refine_ratio` -> 0 the hierarchy is
-   the all-pairs sum exactly; at the default 0.25 the lightmap differs from it by < 1% in the
-   mean and < 3% per texel (tested), and relmse.indirect against Mitsuba on cornell_spot by ~3%.
+   per receiver tile (at most 16 consecutive leaves of the tree: nearby texels, of any charts)
+   walks the emitter tree without a stack; a node is used whole (P(w) |cos_r| / (pi d^2 + a))
+   when its bounding radius is below `refine_ratio` times its distance to the tile's bounding
+   sphere, else refined down to the texels (always summed exactly); a flat node whose plane
+   holds the (flat) tile is skipped, since each of its texels sees the tile at cos_e = 0. As
+   `refine_ratio` -> 0 the hierarchy is the all-pairs sum exactly; at the default 0.2 the
+   lightmap differs from it by < 1% in the mean and < 3% per texel (tested on cornell_spot and
+   on a floor of 1,600 separate tiles; 0.4% and 0.5% on cornell_spot). The default was 0.25
+   with a tree per chart, whose 64-texel receiver tiles made the test stricter for most of
+   their texels; with 16-texel tiles, 0.2 gives the same error against Mitsuba (hidden_bounce
+   relMSE +5%, cornell_spot -9%).
 5. `resolve`: each camera pixel maps its position through its triangle's chart map to the
    lightmap, interpolates the displayed irradiance of the side it shows bilinearly over
    covered texels, and outputs L = rho / pi * E.
@@ -65,8 +78,12 @@ all charts at `texel_density` texels per metre, at most `max_lightmap_resolution
 density is the largest that fits, below the target). A fixed side gives a scene texels in
 inverse proportion to its area (big_floor, 2000 m^2, got 2 texels per metre at 128^2 and lost
 13% of its indirect light: its 1 m spot and 15 cm cubes were a texel or two); with the rule,
-cornell_spot (29 m^2) keeps ~126^2 at 20 texels/m and the large scenes get the cap's 256^2
-(big_floor ~4.8 texels/m).
+cornell_spot (29 m^2) keeps 123^2 at 20 texels/m and the large scenes get the cap's 256^2
+(big_floor 5.0 texels/m; sponza 1.8, sibenik 1.5, conference 6.6). Chart boxes have no margin
+texels of their own (unwrap.py: ceil(s w + 0.51) texels, the resolve clamps its bilinear taps
+to the chart's box), so a chart smaller than a texel costs one texel: with a texel of margin
+on each side (9 texels per small chart) sponza's 7,300 charts left it 0.09 texels per metre
+and conference's 18,000 did not fit 256^2.
 
 Corrections to the article's formulas (each checked against the invariant it must satisfy):
 
@@ -98,20 +115,44 @@ The method is deterministic (no random numbers): the seed does not change the im
 texel density grows it converges to `manylights` with `emission=lambert` (the continuous
 unshadowed one-bounce integral); the error at a fixed density is largest in concave corners,
 where near-field texels see each other at distances comparable to their size. Cost per
-frame: all_pairs texels x budget pair evaluations per bounce; the hierarchy ~1/12 of that on
-cornell_spot (a tile visits ~1,000 nodes instead of 11,700 texels; ~1/6 in llvmpipe time).
+frame: all_pairs texels x budget pair evaluations per bounce; with the hierarchy each receiver
+tile walks this frame's slice of the tree (for the whole window, a tile visits ~1,150 nodes on
+cornell_spot's 12,400 texels, ~330 on a floor of 1,600 separate tiles; `read_visits()`).
+Measured at the defaults (gibench run --defaults-only --res 320x180 --frames 3 --timing-budget
+0, llvmpipe, 2 shared cores), frame_ms of pbgi / direct: sponza 1.43 s / 0.25 s (5.7x; with a
+tree per chart the gather alone took ~26-30 s), sibenik 1.58 / 0.36 (4.4x), conference 1.59 /
+0.34 (4.7x; it did not fit the lightmap before), cornell_spot 0.146 / 0.023 (6.5x),
+cornell_box 0.124 / 0.0074 (17x: a 30-triangle box whose direct light costs nothing); prepare
+2-6 s on the real scenes (up to 33 s on a loaded machine: the conservative lightmap
+rasterisation of 66k-331k triangles), the row (prepare, the untimed convergence of W = 22-26
+frames of work, 3 frames) 33-40 s. On the small procedural scenes the frame costs ~1.7-1.9x
+that of the tree per chart (cornell_spot, cornell_box; same process, alternating; the gather
+stage 1.7-2.7x): its nodes are larger (the power vectors) and its 16-texel tiles visit about
+as many nodes per texel at refine_ratio 0.2 as the 64-texel ones did at 0.25.
 
 | parameter               | default   | range                 | meaning                                                   |
 |-------------------------|-----------|-----------------------|-----------------------------------------------------------|
 | texel_density           | 20.0      | 1 .. 1000             | target lightmap texels per metre (quality; sweep 5, 10, 20, 40) |
 | max_lightmap_resolution | 256       | 16 .. 1024            | largest lightmap side; the density drops when it is reached |
-| gather                  | hierarchy | hierarchy, all_pairs  | emitter quadtree walk, or every texel from every texel    |
-| refine_ratio            | 0.25      | 0 .. 1                | hierarchy: node used whole when radius < ratio x distance (quality; sweep 0.1, 0.25, 0.5) |
+| gather                  | hierarchy | hierarchy, all_pairs  | walk of one emitter octree over all texels, or every texel from every texel |
+| refine_ratio            | 0.2       | 0 .. 1                | hierarchy: node used whole when radius < ratio x distance (quality; sweep 0.1, 0.2, 0.5) |
 | emitter_budget          | 2048      | 0 .. 2^24             | emitter texels gathered per frame, rotating (0: all every frame) |
 | bounces                 | 1         | 1 .. 8                | light bounces summed (the benchmark compares one bounce)  |
 
 A scene whose charts cannot be packed into the lightmap (too many separate charts for the
 resolution) is skipped with a message naming `max_lightmap_resolution`.
+
+Quality ladder (`gibench run`), fast -> accurate:
+  1. texel_density 10, max_lightmap_resolution 192, refine_ratio 0.5;
+  2. the defaults (20 texels/m, 256^2 at most, refine_ratio 0.2);
+  3. texel_density 40, max_lightmap_resolution 384.
+The lightmap's density is the error that dominates (the hierarchy at 0.2 is within 1% of the
+all-pairs sum, at 0.5 within ~4%), so the rungs turn the density and, on the large and real
+scenes where the cap binds (sponza gets 1.3 / 1.8 / 2.8 texels per metre), the cap with it;
+the top rung keeps refine_ratio 0.2 (0.1 costs ~2.5x the visits for < 1%). The per-frame cost
+hardly depends on the rung (the emitter budget fixes the emitters per frame; more receivers
+walk smaller slices of a larger tree); the convergence window (untimed frame 0) grows with
+the texel count: on sponza the top rung's window is 48 frames (98k texels, 2x the default's).
 """
 from __future__ import annotations
 
@@ -131,20 +172,55 @@ from .unwrap import LightmapTooSmall, chart_image, find_charts, unwrap
 SHADERS = Path(__file__).parent / "shaders"
 PBGI_DEFINES = {"BINDING_PBGI_TRIANGLES": 3, "BINDING_PBGI_TEXELS": 4, "BINDING_PBGI_SURFELS": 5,
                 "BINDING_PBGI_EMITTERS": 6, "BINDING_PBGI_NODE_LINKS": 7, "BINDING_PBGI_LEVEL_NODES": 8,
-                "BINDING_PBGI_TILES": 9}
+                "BINDING_PBGI_TILES": 9, "BINDING_PBGI_VISITS": 10}
 HIERARCHY_DEFINES = {
     "FLAT_COSINE_TOLERANCE": 1e-6,    # a node is flat when every leaf normal is within this (1 - cos) of its normal
     "FLAT_DISTANCE_TOLERANCE": 1e-5,  # ... and every child centre within this many node radii of its plane
     "PLANE_TOLERANCE": 1e-4,          # a receiver within this many node radii of a flat node's plane gets nothing from it
 }
-RECEIVER_TILE_LEVEL = 3     # hierarchical gather: one workgroup per 2^3 x 2^3 block of a chart's texels
+TILE_TEXELS = 16            # hierarchical gather: one workgroup per tile of at most 16 nearby texels
+MAX_WORK_GROUPS = 65535     # per dispatch dimension (the GL minimum of GL_MAX_COMPUTE_WORK_GROUP_COUNT)
 WELD_TOLERANCE_REL = 1e-6   # vertices closer than this (times the scene radius) share chart edges
 SURFEL_BYTES = 64           # struct Surfel: 4 vec4
+NODE_BYTES = 144            # struct EmitterNode: 9 vec4
+TRIANGLE_BYTES = 64         # struct ChartTriangle: 4 vec4
+
+
+def _tile_records(tiles, position, normal, area, texel_m: float) -> np.ndarray:
+    """ReceiverTile records (gather_hierarchy.glsl) of the tiles (first leaf, count): bounding
+    sphere of the texels (area-weighted centre; each texel's radius as its leaf node's), mean
+    normal and flat flag (every texel with that normal, on its plane: the tolerances of the
+    emitter nodes), then the leaf range. Texel arrays in leaf order."""
+    first, count = tiles[:, 0], tiles[:, 1]
+    owner = np.repeat(np.arange(len(tiles)), count)
+    a = area[:, None]
+    centre = np.zeros((len(tiles), 3))
+    np.add.at(centre, owner, a * position)
+    centre /= np.bincount(owner, weights=area)[:, None]
+    mean_n = np.zeros((len(tiles), 3))
+    np.add.at(mean_n, owner, a * normal)
+    mean_n /= np.maximum(np.linalg.norm(mean_n, axis=1), 1e-30)[:, None]
+    axis_cos = np.maximum(np.abs(normal).max(axis=1), 1.0 / np.sqrt(3.0))
+    reach = np.linalg.norm(position - centre[owner], axis=1) + np.sqrt(0.5) * texel_m / axis_cos
+    radius = np.zeros(len(tiles))
+    np.maximum.at(radius, owner, reach)
+    along = np.einsum("ij,ij->i", normal, mean_n[owner])
+    height = np.abs(np.einsum("ij,ij->i", position - centre[owner], mean_n[owner]))
+    ok = (along >= 1.0 - HIERARCHY_DEFINES["FLAT_COSINE_TOLERANCE"]) & (
+        height <= HIERARCHY_DEFINES["FLAT_DISTANCE_TOLERANCE"] * radius[owner])
+    flat = np.bincount(owner, weights=~ok, minlength=len(tiles)) == 0
+    records = np.zeros((len(tiles), 12), dtype=np.float32)
+    records[:, :3], records[:, 3] = centre, radius
+    records[:, 4:7], records[:, 7] = mean_n, flat
+    records.view(np.int32)[:, 8], records.view(np.int32)[:, 9] = first, count
+    return records
 
 
 class TextureSpacePBGI(MethodBase):
     name = "pbgi"
-    summary = "Texture-space point-based GI: lightmap texels as surfels, Bunnell disk transfer over an emitter quadtree"
+    summary = "Texture-space point-based GI: lightmap texels as surfels, Bunnell disk transfer over an emitter octree"
+    ladder = ({"texel_density": 10.0, "max_lightmap_resolution": 192, "refine_ratio": 0.5}, {},
+              {"texel_density": 40.0, "max_lightmap_resolution": 384})
     stages = ("lightmap_direct", "emitter_hierarchy", "gather", "resolve")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
     params = {
@@ -152,10 +228,10 @@ class TextureSpacePBGI(MethodBase):
                                      "the charts at this density)", 1.0, 1000.0, quality=True, sweep=(5.0, 10.0, 20.0, 40.0)),
         "max_lightmap_resolution": Param(256, "largest lightmap side in texels (the density drops when reached)",
                                          16, 1024),
-        "gather": Param("hierarchy", "emitters: 'hierarchy' (quadtree of each chart's texels) or 'all_pairs'",
+        "gather": Param("hierarchy", "emitters: 'hierarchy' (one octree over every texel) or 'all_pairs'",
                         choices=("hierarchy", "all_pairs")),
-        "refine_ratio": Param(0.25, "hierarchy: a node is used whole when its radius < this times its distance",
-                              0.0, 1.0, quality=True, sweep=(0.1, 0.25, 0.5)),
+        "refine_ratio": Param(0.2, "hierarchy: a node is used whole when its radius < this times its distance",
+                              0.0, 1.0, quality=True, sweep=(0.1, 0.2, 0.5)),
         "emitter_budget": Param(2048, "emitter texels gathered per frame, rotating (0: all every frame)",
                                 0, 2 ** 24),
         "bounces": Param(1, "light bounces summed in the lightmap", 1, 8),
@@ -171,7 +247,7 @@ class TextureSpacePBGI(MethodBase):
             raise SkipRow(f"max_lightmap_resolution={params['max_lightmap_resolution']} exceeds "
                           f"GL_MAX_TEXTURE_SIZE {ctx.info['GL_MAX_TEXTURE_SIZE']}")
         self.hierarchical = params["gather"] == "hierarchy"
-        self.triangles = ctx.buffer(reserve=gpu.triangle_count * 48)
+        self.triangles = ctx.buffer(reserve=gpu.triangle_count * TRIANGLE_BYTES)
         self._unwrap_without_overlaps(gpu, scene)
         self.resolution = res = self.unwrap.resolution
 
@@ -184,14 +260,20 @@ class TextureSpacePBGI(MethodBase):
         # re-renders it only where an object moves); the per-frame passes relight it.
         self._render_lightmap_gbuffer(gpu)
         check_gl(ctx, "pbgi lightmap gbuffer")
-        area_image = np.frombuffer(self.lm_position.read(), dtype=np.float32).reshape(res, res, 4)[..., 3]
-        ys, xs = np.nonzero(area_image > 0)
+        position_sum = np.frombuffer(self.lm_position.read(), dtype=np.float32).reshape(res, res, 4)
+        normal_sum = np.frombuffer(self.lm_normal.read(), dtype=np.float32).reshape(res, res, 4)
+        ys, xs = np.nonzero(position_sum[..., 3] > 0)
         chart = chart_image(self.unwrap)[ys, xs]
         if np.any(chart < 0):
             raise RuntimeError(f"pbgi: {int((chart < 0).sum())} lightmap texel(s) covered outside every chart box")
-        # texels in leaf order (chart, then Z-order in the chart): a quadtree block is a range of them
-        self.tree = tree = build_tree(xs, ys, chart, self.unwrap.chart_box)
-        xs, ys, chart = xs[tree.leaf_order], ys[tree.leaf_order], chart[tree.leaf_order]
+        area = position_sum[ys, xs, 3].astype(np.float64)
+        position = position_sum[ys, xs, :3].astype(np.float64) / area[:, None]
+        normal = normal_sum[ys, xs, :3].astype(np.float64)
+        normal /= np.maximum(np.linalg.norm(normal, axis=1), 1e-30)[:, None]
+        # texels in leaf order (normal class, then octree order): a node is a range of them
+        self.tree = tree = build_tree(position, normal)
+        order = tree.leaf_order
+        xs, ys, chart, area, position, normal = xs[order], ys[order], chart[order], area[order], position[order], normal[order]
         self.texel_xy = np.column_stack([xs, ys])
         self.texel_chart = chart
         self.texel_count = len(xs)
@@ -199,19 +281,20 @@ class TextureSpacePBGI(MethodBase):
         self.surfels = ctx.buffer(reserve=self.texel_count * SURFEL_BYTES)
         self.surfel_program = load_compute(ctx, SHADERS / "surfel_radiosity.glsl", PBGI_DEFINES)
 
-        defines = dict(PBGI_DEFINES, **HIERARCHY_DEFINES, TILE_SIZE=2 ** RECEIVER_TILE_LEVEL)
+        defines = dict(PBGI_DEFINES, **HIERARCHY_DEFINES, TILE_TEXELS=TILE_TEXELS)
         self.nodes = self.node_links = self.level_nodes = self.hierarchy_program = self.tiles = None
-        self.gather_program = self.gather_vao = None
+        self.visits = self.gather_program = self.gather_vao = None
+        self.tile_count = 0
         if self.hierarchical:
-            self.nodes = ctx.buffer(reserve=tree.node_count * SURFEL_BYTES)
+            self.nodes = ctx.buffer(reserve=tree.node_count * NODE_BYTES)
             self.node_links = ctx.buffer(np.column_stack([tree.skip, tree.lo]).astype(np.int32).tobytes())
             self.level_nodes = ctx.buffer(tree.level_nodes.astype(np.int32).tobytes())
             self.hierarchy_program = load_compute(ctx, SHADERS / "emitter_hierarchy.glsl", defines)
-            tile_nodes, tile_boxes = tree.receiver_tiles(xs, ys, RECEIVER_TILE_LEVEL)
-            records = np.zeros((len(tile_nodes), 8), dtype=np.int32)
-            records[:, :4], records[:, 4] = tile_boxes, tile_nodes
-            self.tile_count = len(tile_nodes)
-            self.tiles = ctx.buffer(records.tobytes())
+            tiles = tree.receiver_tiles(TILE_TEXELS)
+            self.tile_count = len(tiles)
+            self.tiles = ctx.buffer(_tile_records(tiles, position, normal, area, 1.0 / self.unwrap.scale).tobytes())
+            self.visits = ctx.buffer(reserve=self.tile_count * 4)
+            self.visits.clear()
             self.gather_program = load_compute(ctx, SHADERS / "gather_hierarchy.glsl", defines)
         else:
             self.gather_program = load_program(ctx, SHADERS / "gather.glsl", defines)
@@ -271,9 +354,11 @@ class TextureSpacePBGI(MethodBase):
                             obj.release()
                     count_tex = self._texture((res, res))
                     count_fbo = ctx.framebuffer([count_tex])
-                records = np.zeros((gpu.triangle_count, 3, 4), dtype=np.float32)
+                records = np.zeros((gpu.triangle_count, 4, 4), dtype=np.float32)
                 records[:, :2] = uw.rows
                 records[:, 2, :3] = uw.face_normal
+                x0, y0, w, h = uw.chart_box[uw.chart_of_triangle].T
+                records[:, 3] = np.column_stack([x0, y0, x0 + w, y0 + h])
                 self.triangles.write(records.tobytes())
                 count_fbo.use()
                 ctx.viewport = (0, 0, res, res)
@@ -391,12 +476,17 @@ class TextureSpacePBGI(MethodBase):
         if self.hierarchical:
             self.node_links.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_NODE_LINKS"])
             self.tiles.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_TILES"])
+            self.texels.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_TEXELS"])
+            self.surfels.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_SURFELS"])
+            self.visits.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_VISITS"])
             images = (*self.bounce_tex[self.parity][bounce], *self.total_tex[self.parity])
             for unit, tex in enumerate(images):
                 tex.bind_to_image(unit, read=True, write=True)
             for a, b in chunks:
                 set_uniforms(prog, u_first=first + a, u_end=first + b, u_refine_ratio=self.params["refine_ratio"])
-                prog.run(group_x=self.tile_count)
+                for t0 in range(0, self.tile_count, MAX_WORK_GROUPS):   # GL guarantees 65535 groups per dimension
+                    set_uniforms(prog, u_tile_offset=t0)
+                    prog.run(group_x=min(MAX_WORK_GROUPS, self.tile_count - t0))
                 ctx.memory_barrier()
             return
         self.gather_fbos[self.parity][bounce].use()
@@ -448,13 +538,13 @@ class TextureSpacePBGI(MethodBase):
                                 u_gbuffer_geo_normal=g.geo_normal, u_gbuffer_albedo=g.albedo,
                                 u_total_front=front, u_total_back=back, **self._lightmap_textures())
             self.triangles.bind_to_storage_buffer(PBGI_DEFINES["BINDING_PBGI_TRIANGLES"])
-            set_uniforms(self.resolve_program, u_lightmap_size=self.resolution)
             self.resolve_vao.render(moderngl.TRIANGLES, vertices=3)
         skipped = () if self.hierarchical else ("emitter_hierarchy",)
         return FrameOutput(direct=passes.direct.radiance, indirect=self.indirect, skipped_stages=skipped,
                            extra={"texels": self.texel_count, "emitters": self.emitter_count,
                                   "charts": self.unwrap.chart_count, "texels_per_m": self.unwrap.scale,
-                                  "lightmap_resolution": self.resolution, "window_frames": self.window})
+                                  "lightmap_resolution": self.resolution, "window_frames": self.window,
+                                  "receiver_tiles": self.tile_count})
 
     # ------------------------------------------------------------------ diagnostics and release
     def read_lightmap(self) -> dict:
@@ -469,9 +559,15 @@ class TextureSpacePBGI(MethodBase):
                 "albedo": rd(self.lm_albedo), "total_front": rd(front), "total_back": rd(back)}
 
     def read_nodes(self) -> np.ndarray:
-        """The emitter hierarchy's nodes (N, 4, 4) float32: position/area, normal/radius,
-        radiosity front/-, radiosity back/flat flag (pre-order, see hierarchy.py)."""
-        return np.frombuffer(self.nodes.read(), np.float32).reshape(-1, 4, 4).copy()
+        """The emitter hierarchy's nodes (N, 9, 4) float32 (pre-order, see hierarchy.py): centroid/
+        area, mean normal/radius, (mean leaf area, flat flag, 0, 0), flux_odd[3],
+        flux_even[3] (pbgi_records.glsl)."""
+        return np.frombuffer(self.nodes.read(), np.float32).reshape(-1, 9, 4).copy()
+
+    def read_visits(self) -> np.ndarray:
+        """(tiles,) nodes visited by each receiver tile's walks since prepare, over all slices and
+        bounces gathered (gather=hierarchy)."""
+        return np.frombuffer(self.visits.read(), np.uint32).astype(np.int64)
 
     def release(self) -> None:
         if getattr(self, "ctx", None) is None:
@@ -479,7 +575,7 @@ class TextureSpacePBGI(MethodBase):
         park(self.ctx)
         objects = [getattr(self, name, None) for name in (
             "indirect_fbo", "indirect", "resolve_vao", "resolve_program", "gather_vao", "gather_program",
-            "surfel_program", "hierarchy_program", "nodes", "node_links", "level_nodes", "tiles", "surfels",
+            "surfel_program", "hierarchy_program", "nodes", "node_links", "level_nodes", "tiles", "visits", "surfels",
             "texels", "lm_vao", "lm_program", "lm_fbo", "lm_position", "lm_normal", "lm_face_normal", "lm_albedo", "triangles")]
         for row in getattr(self, "gather_fbos", None) or ():
             objects += row
@@ -492,7 +588,7 @@ class TextureSpacePBGI(MethodBase):
             if obj is not None:
                 obj.release()
         for name in ("indirect_fbo", "indirect", "resolve_vao", "resolve_program", "gather_vao", "gather_program",
-                     "surfel_program", "hierarchy_program", "nodes", "node_links", "level_nodes", "tiles", "surfels",
+                     "surfel_program", "hierarchy_program", "nodes", "node_links", "level_nodes", "tiles", "visits", "surfels",
                      "texels", "lm_vao", "lm_program", "lm_fbo", "lm_position", "lm_normal", "lm_face_normal", "lm_albedo",
                      "triangles", "gather_fbos", "bounce_tex", "total_tex"):
             setattr(self, name, None)

@@ -26,15 +26,20 @@ Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
    scatter writes the mapping C (VPL -> VAL) and, with MAX blending, the bounding rectangle of
    the VPLs projected on the VAL's plane; the VAL's size is lambda = sqrt(its area).
 3. `val_shadow_maps`: one paraboloid map per VAL (a tile of one R32F atlas), oriented around
-   its normal, all in one instanced draw with tessellation: the projection bends straight
-   edges into arcs, so each edge is split into pieces whose chord strays at most
-   TESS_SAGITTA_TEXELS = 0.5 texel from the arc (the projected edge length in map units sets
-   the level, per VAL and per frame; patches entirely behind the VAL's plane or inside its
-   ignore radius are dropped before tessellation). Each texel stores the exact distance along
-   its own direction to the plane of the triangle drawn there (an interpolated distance is
-   off by percents across a tessellated piece). Then, for `visibility=cssm`: the map's far
-   distance far_j (largest drawn distance, the depth normalisation), the Fourier basis and
-   basis-z atlases (`fourier_terms` terms, same tiling; paper Sec. 6) and their MIP maps.
+   its normal. A compute pass (`map_split.glsl`) tests every (VAL, triangle) pair: pairs of an
+   empty VAL, triangles behind the VAL's plane, inside its ignore radius or seen edge-on are
+   dropped; a pair whose projected edges need no split and whose image's bounding box holds at
+   most SPLAT_MAX_TEXELS = 64 texel centres is rasterised there (each covered texel centre gets
+   the exact distance by an atomic minimum into an R32UI splat image, merged into the atlas);
+   the others are listed for two draws with vertices pulled from the scene's buffers: plain
+   triangles, and a tessellated draw for the pairs whose edges must bend (the projection turns
+   straight edges into arcs; each edge is split into pieces whose chord strays at most
+   TESS_SAGITTA_TEXELS = 0.5 texel from the arc, the level set from the projected edge length
+   in map units per VAL and frame). Each texel stores the exact distance along its own
+   direction to the plane of the triangle drawn there (an interpolated distance is off by
+   percents across a tessellated piece). Then, for `visibility=cssm`: the map's far distance
+   far_j (largest drawn distance, the depth normalisation), the Fourier basis and basis-z
+   atlases (`fourier_terms` terms, same tiling; paper Sec. 6) and their MIP maps.
 4. `val_visibility`: V_j(x) for every pixel and VAL (compute): parabolic CSSM (blocker
    search, penumbra estimate, MIP-filtered convolution of the basis, sharpened shadow test)
    or, with `visibility=hard`, one binary shadow-map test at the VAL centre.
@@ -76,10 +81,22 @@ Corrections and choices relative to the paper's text (recorded here as the house
 - Map resolution: the paper's 256^2 maps serve 800 x 800 images (3 map texels per pixel for
   M = 30) and take 8% of its frame, the per-pixel gather 69%. At the benchmark's 128 x 96 the
   per-pixel stages are 50x cheaper while the maps are not, so the default is 128^2 (still 40
-  map texels per pixel); 256 is a sweep value. The map stage is still the frame's largest on
-  the software rasteriser (about 35-45% on cornell_spot and rooms, over 60% on the scenes of
-  5-8 k triangles), mostly the draw: M x triangles primitives at a fixed set-up cost each
-  (the paper: "the scene needs to be rendered once for each VAL").
+  map texels per pixel); 256 is a sweep value.
+- Map rasterisation (issue #11): drawing every (VAL, triangle) pair through the tessellation
+  pipeline ("the scene needs to be rendered once for each VAL", paper Sec. 6) made the map
+  stage 67-74% of the frame on hidden_bounce and big_floor (M x triangles = 170 k and 250 k
+  primitives on the software rasteriser, where each primitive costs a fixed set-up, and a
+  tessellated one about 4x a plain one, whatever its size). Yet 98-100% of the pairs need no
+  split at 128^2, and half of big_floor's pairs cover no texel centre at all: the compute pass
+  above rasterises the small pairs (the same chord triangle, clip distances and exact
+  per-texel distance as the draw; the maps agree with the all-tessellated pass on all but a
+  handful of texels where a texel centre lies on a shared edge) and the GL pipeline gets the
+  few large ones (big_floor: 60 of 250 k pairs, all tessellated; cornell_spot 3 k of 30 k). In
+  one process, per-stage minima over 6 frames at 128 x 96 (a shared 2-core machine, so only
+  ratios mean anything), the map stage's share of the frame went from 0.73 to 0.30 .. 0.44 on
+  hidden_bounce, 0.84 to 0.29 on big_floor and 0.45 to 0.24 on cornell_spot; at 320 x 180 it
+  is 0.05 .. 0.12 on every default scene. Culling by the VAL's hemisphere alone would not have
+  helped: 78-100% of the pairs face their VAL.
 - The basis is kept in 2-D atlases tiled as the depth atlas instead of texture arrays: MIP
   maps of one atlas cost a third of those of a 30-layer array on the software rasteriser, and
   with power-of-two tiles no MIP texel mixes two maps; lookups are clamped half a texel of
@@ -112,11 +129,21 @@ Corrections and choices relative to the paper's text (recorded here as the house
 | blur_normal_dot    | 0.8     | -1 .. 1          | blur beta: min normal dot product                          |
 | clamp_distance_rel | 1e-4    | 1e-7 .. 1        | eps of max(eps, d), relative to the scene radius           |
 
+Quality ladder (fast -> accurate; `ladder`): {cluster_count 10, shadow_resolution 64},
+{cluster_count 20}, {} (the paper's 30 VALs at 128^2), {cluster_count 60, shadow_resolution 256}.
+The two knobs that trade time for visibility error together: more VALs give finer clusters
+(smaller penumbra errors), a finer map sharper occluders; the VPL count stays at the paper's
+1024 on every rung (the IR baselines are compared at the same count).
+
 Memory: the basis atlases hold (tiles >= cluster_count) x shadow_resolution^2 x
 (2 x fourier_terms + (2 x fourier_terms + 1) / 4) half floats (+1/3 for MIP maps), the visibility array width x height x
-cluster_count floats; a combination over 1 GiB, an atlas over GL_MAX_TEXTURE_SIZE, or a
+cluster_count floats, the map pass's pair list 4 x min(cluster_count x triangles, MAX_MAP_PAIRS)
+bytes (16 MiB at most: triangles are processed in chunks); a combination over 1 GiB, an atlas over GL_MAX_TEXTURE_SIZE, or a
 shadow_resolution that is not a power of two is refused in prepare() with an error naming the
 parameters.
+
+Stress limit params:vpl_count=1: fewer VPLs than `cluster_count` (30) cannot be clustered into
+that many VALs; prepare() refuses it with one line naming both parameters.
 """
 from __future__ import annotations
 
@@ -135,13 +162,24 @@ from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler
 
 SHADERS = Path(__file__).parent / "shaders"
 VAL_RECORD_BYTES = 3 * 16            # struct Val in val_records.glsl: three vec4
-VAL_DEFINES = dict(VPL_DEFINES, BINDING_VALS=7, BINDING_VPL_CLUSTER=8, BINDING_VAL_COUNT=9)
+VAL_DEFINES = dict(VPL_DEFINES, BINDING_VALS=7, BINDING_VPL_CLUSTER=8, BINDING_VAL_COUNT=9, BINDING_MAP_POSITIONS=10,
+                   BINDING_MAP_FACES=11, BINDING_MAP_PAIRS=12, BINDING_MAP_COMMANDS=13)
 TESS_SAGITTA_TEXELS = 0.5           # largest chord-to-arc distance of a tessellated edge piece in the map
 TESS_MAX_LEVEL = 64                  # GL guarantees tessellation levels up to 64
 LIFT_SCALE = 1e-4                    # VAL map centre above its surface / scene radius (as ir_shadowed)
 NEAR_SCALE = 1e-5                    # smallest ignore radius / scene radius (ir_shadowed's near plane)
 BLOCKER_MIN = 0.02                   # filtered blocker fraction below which a receiver is unoccluded
 MAX_BASIS_BYTES = 1 << 30
+PAIR_TRIANGLE_BITS = 24              # a listed map pair is one uint: VAL << 24 | triangle - chunk start (<= 256 VALs)
+MAX_MAP_PAIRS = 1 << 22              # (VAL, triangle) pairs per chunk of the map pass (a 16 MiB pair list at most)
+MAP_GROUP = 64                       # local_size_x of map_split.glsl
+SPLAT_MAX_TEXELS = 64                # map_split.glsl rasterises a pair whose image's bounding box holds <= this many texel centres
+SPLAT_MIN_COS = 0.05                 # ... unless a corner lies within acos(SPLAT_MIN_COS - 1) of the direction opposite the VAL normal
+MAP_EMPTY = 3.0e38                   # distance of an empty map texel
+# two DrawArraysIndirect commands (count, instances, first, base instance; moderngl's 5-uint stride): the
+# untessellated and the tessellated listed map pairs; map_split.glsl adds 3 to a count per listed pair
+MAP_COMMANDS_RESET = np.array([0, 1, 0, 0, 0, 0, 1, 0, 0, 0], np.uint32).tobytes()
+GL_R32UI = 0x8236
 GL_R32F = 0x822E
 
 
@@ -278,12 +316,29 @@ class ParaboloidShadowMaps:
         max_arc_uv = math.sqrt(8.0 * TESS_SAGITTA_TEXELS * 2.0 / self.resolution)
         self.max_lod = int(math.log2(self.resolution))  # level at which a tile is one texel
         self.defines = dict(VAL_DEFINES, TERM_GROUPS=self.term_groups, TESS_MAX_ARC_UV=max_arc_uv,
-                            TESS_MAX_LEVEL=TESS_MAX_LEVEL, MAX_LOD=self.max_lod)
+                            TESS_MAX_LEVEL=TESS_MAX_LEVEL, MAX_LOD=self.max_lod,
+                            PAIR_TRIANGLE_BITS=PAIR_TRIANGLE_BITS, SPLAT_MAX_TEXELS=SPLAT_MAX_TEXELS, SPLAT_MIN_COS=SPLAT_MIN_COS,
+                            MAP_EMPTY=MAP_EMPTY)
         self.atlas = ctx.texture(size, 1, dtype="f4")
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.fbo = ctx.framebuffer([self.atlas])
+        # (VAL, triangle) pairs, chunk by chunk of triangles: map_split.glsl splats the small ones, lists the others
+        self.chunk_triangles = min(gpu.triangle_count, max(1, MAX_MAP_PAIRS // m), 1 << PAIR_TRIANGLE_BITS,
+                                   MAP_GROUP * 65535)   # GL guarantees 65535 work groups per dimension
+        self.pair_capacity = m * self.chunk_triangles
+        self.pairs = ctx.buffer(reserve=4 * self.pair_capacity)
+        self.commands = ctx.buffer(MAP_COMMANDS_RESET)
+        self.commands_reset = ctx.buffer(MAP_COMMANDS_RESET)  # copied on the GPU: no CPU upload in a frame
+        empty_bits = np.full(size[0] * size[1], MAP_EMPTY, np.float32).view(np.uint32)
+        self.splat = ctx.texture(size, 1, empty_bits.tobytes(), dtype="u4")   # map_merge.glsl resets it each frame
+        self.splat.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.split_pass = load_compute(ctx, SHADERS / "map_split.glsl", self.defines)
         self.program = load_program(ctx, SHADERS / "paraboloid_depth.glsl", self.defines)
-        self.vao = gpu.vertex_array(self.program)
+        self.tess_program = load_program(ctx, SHADERS / "paraboloid_depth_tess.glsl", self.defines)
+        self.merge_program = load_program(ctx, SHADERS / "map_merge.glsl", self.defines)
+        self.vao = ctx.vertex_array(self.program, [])
+        self.tess_vao = ctx.vertex_array(self.tess_program, [])
+        self.merge_vao = ctx.vertex_array(self.merge_program, [])
         # RGBA16F atlases: sin_g, cos_g per group g at the map resolution; zsin_g, zcos_g per
         # group and the R16F z at half resolution (level 1 of their MIP chain, see cssm_basis.glsl).
         # (The paper's 8-bit sin/cos would save a third of the basis pass here, but their MIP
@@ -315,20 +370,38 @@ class ParaboloidShadowMaps:
         self.fbo.use()
         ctx.viewport = (0, 0, self.atlas.width, self.atlas.height)
         ctx.scissor = None
-        self.fbo.clear(3.0e38, 0.0, 0.0, 0.0)
+        self.fbo.clear(MAP_EMPTY, 0.0, 0.0, 0.0)
         ctx.enable_only(moderngl.BLEND)
         ctx.blend_equation = moderngl.MIN
         for i in range(5):
             ctx.enable_direct(0x3000 + i)  # GL_CLIP_DISTANCE0 + i
         self.clustering.bind()
-        set_uniforms(self.program, **self.clustering.common)
-        set_uniforms(self.program, u_tiles_x=self.tiles_x, u_tiles_y=self.tiles_y, u_near_ignore=self.near_ignore,
-                     u_resolution=self.resolution,
-                     u_near_min=NEAR_SCALE * self.gpu.radius)
+        gpu = self.gpu
+        gpu.vbo_position.bind_to_storage_buffer(VAL_DEFINES["BINDING_MAP_POSITIONS"])
+        gpu.ibo.bind_to_storage_buffer(VAL_DEFINES["BINDING_MAP_FACES"])
+        self.pairs.bind_to_storage_buffer(VAL_DEFINES["BINDING_MAP_PAIRS"])
+        self.commands.bind_to_storage_buffer(VAL_DEFINES["BINDING_MAP_COMMANDS"])
+        self.splat.bind_to_image(0, read=True, write=True, level=0, format=GL_R32UI)
+        m = self.clustering.cluster_count
+        for prog in (self.split_pass, self.program, self.tess_program):
+            set_uniforms(prog, **self.clustering.common)
+            set_uniforms(prog, u_tiles_x=self.tiles_x, u_tiles_y=self.tiles_y, u_near_ignore=self.near_ignore,
+                         u_resolution=self.resolution, u_near_min=NEAR_SCALE * gpu.radius,
+                         u_pair_capacity=self.pair_capacity)
         ctx.patch_vertices = 3
-        self.vao.render(moderngl.PATCHES, instances=self.clustering.cluster_count)
+        for first, end in loop_chunks(gpu.triangle_count, self.chunk_triangles):
+            ctx.copy_buffer(self.commands, self.commands_reset)
+            for prog in (self.split_pass, self.program, self.tess_program):
+                set_uniforms(prog, u_first_triangle=first, u_chunk_triangles=end - first)
+            self.split_pass.run(group_x=(end - first + MAP_GROUP - 1) // MAP_GROUP, group_y=m)
+            ctx.memory_barrier()
+            self.vao.render_indirect(self.commands, mode=moderngl.TRIANGLES, count=1, first=0)
+            self.tess_vao.render_indirect(self.commands, mode=moderngl.PATCHES, count=1, first=1)
         for i in range(5):
             ctx.disable_direct(0x3000 + i)
+        ctx.memory_barrier()
+        self.merge_vao.render(moderngl.TRIANGLES, vertices=3)   # still MIN blending
+        ctx.memory_barrier()
         ctx.blend_equation = moderngl.FUNC_ADD
         ctx.disable(moderngl.BLEND)
         if self.cssm:
@@ -374,8 +447,9 @@ class ParaboloidShadowMaps:
 
     def release(self) -> None:
         park(self.ctx)
-        for obj in (*self.basis_fbos, self.fbo, self.atlas, self.program, *self.textures(), *self.basis_vaos,
-                    *self.basis_programs, self.far_pass):
+        for obj in (*self.basis_fbos, self.fbo, self.atlas, self.vao, self.tess_vao, self.merge_vao, self.program,
+                    self.tess_program, self.merge_program, self.split_pass, self.pairs, self.commands, self.commands_reset,
+                    self.splat, *self.textures(), *self.basis_vaos, *self.basis_programs, self.far_pass):
             if obj is not None:
                 obj.release()
 
@@ -385,6 +459,8 @@ class ClusteredVirtualAreaLights(MethodBase):
     summary = "Instant radiosity with VPLs clustered into virtual area lights with soft (CSSM) visibility"
     stages = ("vpl_sample", "val_clustering", "val_shadow_maps", "val_visibility", "gather", "blur")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
+    ladder = ({"cluster_count": 10, "shadow_resolution": 64}, {"cluster_count": 20}, {},
+              {"cluster_count": 60, "shadow_resolution": 256})
     params = {
         "vpl_count": Param(1024, "VPLs drawn from the RSM per frame (importance sampled, stratified)", 1, 8192),
         "vpl_sampling": Param("importance", "VPL pattern: the shared RSM importance sampler (the IR baselines' "

@@ -9,7 +9,8 @@ around the geometry, closed by the enlarged bounding box), its curvilinear skele
 (topology, curvature and coverage nodes), greedy *visibility clusters* (quasi-convex parts of
 the empty space: rooms, corridors), clusters joined by a wide gate merged, and one *visibility
 gate* per segmented edge between two clusters: the opening of the empty space where the
-skeleton line is narrowest, as an ellipse (x `gate_radius_scale`).
+skeleton line is narrowest, as a convex polygon (x `gate_radius_scale`); the voxel -> cluster
+grid is cut along the gates, so the gates are the clusters' borders.
 
 Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
 
@@ -25,9 +26,9 @@ Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
    force over VPLs, as in the paper; indirect dispatch over the clusters found).
 4. `gather` (IL): each pixel sums its cluster's VPLs with the Lambertian VPL term of
    ir_unshadowed; a VPL from another visibility cluster C counts only if the segment VPL ->
-   pixel, leaving C through the first of C's gates it crosses, enters the pixel's cluster
-   (`gate_hops` > 1: or walks on, cluster to cluster through the first gate crossed each time,
-   and enters it within `gate_hops` gates).
+   pixel, leaving C through the first of C's gates it crosses, enters the pixel's cluster, or
+   walks on, cluster to cluster through the first gate crossed each time, and enters it within
+   `gate_hops` gates.
 
 Visibility is therefore V = 1 inside a visibility cluster (quasi-convexity: no shadow test),
 V = [the segment reaches the pixel's cluster through gates] otherwise. With the same VPLs the result is
@@ -79,23 +80,42 @@ Paper formula corrections and readings (checked against the invariant each must 
   better match the shape of separation between clusters"; its disk, at the middle of the
   segmented edge, sat half a room before a door with the door's half-width as radius and let
   a third of the door's light through: rooms 0.59x ir_shadowed): the gate lies at the
-  narrowest node of the skeleton line the segmented edge replaces; of the planes through it
-  normal to the line (tangents over 1..8 nodes) or to the edge, the one with the smallest
-  bounded opening is taken; the opening (the plane's region farther than sqrt(3)/2 voxel from
-  every triangle, rasterised) gives an ellipse with its centroid and second moments, grown by
-  the band the threshold took off (exact for rectangles: a 0.9 x 2.1 m door has semi-axes
-  2.1/sqrt(3) and 0.9/sqrt(3), its area 5 % larger). Where no plane has a bounded opening
-  within 4 maximal-ball radii (open space), the disk of that node's maximal ball.
+  narrowest node of the skeleton line the segmented edge replaces, in a plane through it:
+  first the plane of the opening's frame (the area-weighted mean plane of the triangles near
+  the node that face along the skeleton, within 30 degrees: a door's wall, a thick wall's
+  mid-plane), then planes normal to the line (tangents over 8..1 nodes) or to the edge; the
+  first whose bounded opening is within 5 % of the smallest is taken (a plane tilted against a
+  thin wall measures a few % small). The opening (the plane's region farther than sqrt(3)/2
+  voxel from every triangle, rasterised) gives a convex polygon: its convex hull (at most 16
+  edges), each edge then placed where the opening ends by exact distances (marching outward:
+  the region ends at s_f, the occluder's nearest approach beyond it is d_min, the border is
+  sqrt(w^2 - d_min^2) past s_f): a door's rectangle exactly, in the wall's plane. Where no
+  plane has a bounded opening within 4 maximal-ball radii (open space), the regular 16-gon of
+  that node's maximal-ball disk's area. Before, an ellipse with the opening's second moments
+  (the same area for a rectangle) stuck out of a door's sides and lintel and cut its corners:
+  rooms 'far' lit room 3 in hard elliptical patches where the reference's patch has the
+  door's shape.
+- Clusters split at the gates (paper VII: the artefacts "would disappear if the visibility
+  gates were perfect manifolds separating clusters"; IV.A gives each voxel its nearest skeleton
+  node): the voxel -> cluster grid is flooded from the skeleton nodes through the empty space
+  cut along the gates (each gate rasterised as a digital plane inside its polygon grown by a
+  voxel); a cluster's nodes beyond one of its gates (a door's own nodes) seed nothing; in a
+  gate's voxels and its wall's voxels in its plane (up to 3 gate radii away) the side of the
+  gate's plane decides between its two clusters. Before, the nearest-node grid put the door's
+  neighbourhood of room 1 in room 2's cluster (94 of 3805 VPLs of room 1 then lit room 2
+  unshadowed: room 2 seen through door 2 from 'far' got 1.32x the exact light with 4096 VPLs)
+  and split the walls' voxels arbitrarily.
 - Which view samples a cone lights (`gate_hops`): the paper tests the cones "against view
   samples contained in other clusters" (V) while its Fig. 11 lights "the neighbor visibility
-  cluster". Lighting any cluster behind a gate (the previous reading, needed while doors were
-  clusters of their own) leaked through walls once gates had the size of their openings:
-  rooms 'far', two offset doors from the light, 1.45x ir_shadowed. Default: the first gate of
-  the VPL's cluster the segment crosses must lead into the pixel's cluster (Fig. 11); with
-  the merging, a door is part of a room, so light passes between neighbouring rooms.
-  `gate_hops` = k lets the segment walk through up to k gates (rooms 'far' 1.26x with k >= 2:
-  light through two chained doors is a thin set of rays that the ellipses' mismatch with the
-  door rectangles enlarges several times).
+  cluster". Lighting any cluster behind a gate leaks through walls (rooms 'far', two offset
+  doors from the light: 1.45x ir_shadowed). Here the segment VPL -> pixel walks from cluster to
+  cluster, each time through the first gate of the current cluster it crosses, and lights the
+  pixel when it enters the pixel's cluster within `gate_hops` gates (default 4): the cones to
+  "other clusters" narrowed to the light that passes every gate on its way. With gates that
+  are the openings and clusters split at them, this is exact visibility on rooms: from 'far',
+  two thirds of room 3's one-bounce light comes from room 1 through both doors, which one hop
+  (Fig. 11) loses (room 3 at 0.45x the exact light, the view 0.85x the reference); with the
+  earlier ellipses a second hop overshot (1.26x).
 - alpha: "add all neighbors of m ... for which radius of maximal balls does not differ more than
   alpha % of the maximal radius contained in the cluster" / "how similar two maximal balls must
   be": the two balls compared are the popped node m's and its neighbour k's, the tolerance is
@@ -103,22 +123,42 @@ Paper formula corrections and readings (checked against the invariant each must 
   paper). Comparing r_k with r_max(C) itself (the earlier reading) cut every line whose radius
   shrinks gradually into many clusters.
 - Voxel -> cluster: as the paper, geodesically nearest skeleton node, then the nearest extremum
-  of its line, then that segmented node's cluster (not maximal-ball containment).
+  of its line, then that segmented node's cluster (not maximal-ball containment), with the
+  flooding cut along the gates (above).
 - Light lists: the paper stores (VPL, gate) pairs per geometry cluster; here a VPL bit mask,
   and the fragment walks the gates of the VPL's cluster (its first step is one of the cones
   the light assignment tested, so the culling stays conservative), never counting a VPL twice.
+  llvmpipe's loop limit (bench.gl.context.LOOP_CHUNK) counts every VPL's walk (gate_hops x
+  gates of a cluster x polygon edges): a gather draw sums whole words of 32 VPLs, or a range
+  of one word's bits when a word's walks alone would pass it; a scene whose single VPL walk
+  passes it is skipped (SkipRow).
 
-Known behaviour (README.md has the measured tables): at the defaults, 128x96, mean indirect /
-the visible Mitsuba reference: cornell_spot 1.02, hidden_bounce 1.05, rooms 1.02 (main) and
-1.29 (far, where ir_shadowed with the same VPLs is 1.28), big_floor 1.04, sponza 1.69 (ir_shadowed
-1.52); before the corrections above: cornell_spot 0.65, hidden_bounce 0.63, rooms 0.61,
-big_floor and sponza skipped. A box with blocks, and hidden_bounce's room, is one cluster at
-voxel_resolution 32, 64 and 128 (the blocks' closed interiors are clusters of their own, which
-no gate reaches); there the method equals ir_unshadowed. Rooms 'far' is 0.78..1.01x
-ir_shadowed over seeds: its light from room 1 crosses two offset doors, which one gate hop does
-not follow. At voxel_resolution 32 the walls (sqrt(3)/2 voxel on each side) close rooms' second
-door (0.9 m, 2.4 voxels). Precomputation on sponza (66k triangles): about 10 s at resolution
-64, 30 s at 128 (shared 2-core machine), mostly exact distances (voxels, gate openings).
+Known behaviour (README.md has the measured tables): at the defaults, 128x96, seed 0, mean
+indirect / the visible Mitsuba reference: cornell_spot 1.01, hidden_bounce 1.05, rooms 0.99
+(main) and 1.13 (far; ir_shadowed with the same VPLs 1.04 and 1.28, its shadow maps leak along
+the walls' junctions), big_floor 1.04, sphere_inside 1.00, sponza 1.58 (ir_shadowed with the
+same 256 VPLs 1.41, max_triangle_draws raised: unclamped 1/d^2 VPL spikes; 1.15 with 64 VPLs,
+1.21 with 1024, where ir_shadowed is 1.05: 1.15 of it comes from inside the merged, not quite
+convex clusters alone, the paper's own over-estimate, VI.B);
+lit_wall_corner is skipped (open, camera and light outside its bounding box). At 320x180:
+rooms 0.99 (main), 1.11 (far). On rooms the result is the same VPLs summed with exact
+visibility (both doors are gates, every room a cluster), so what is left is the VPLs' own
+noise: 'far' (160x120) is 0.76..1.22x the reference over seeds 0..3 with 256 VPLs, exact
+visibility alike, 0.97 with 4096. Before the gate polygons, the clusters split at the gates and the walk
+through several gates: rooms 'far' 1.29 (room 3 0.69x, room 2 through door 2 1.32x the exact
+light with 4096 VPLs) with hard elliptical patches; before the exact-distance topology:
+cornell_spot 0.65, hidden_bounce 0.63, rooms 0.61, big_floor and sponza skipped. A box with
+blocks, and hidden_bounce's room, is one cluster at voxel_resolution 32, 64 and 128 (the
+blocks' closed interiors are clusters of their own, which no gate reaches); there the method
+equals ir_unshadowed. At voxel_resolution 32 the walls (sqrt(3)/2 voxel on each side) close
+rooms' second door (0.9 m, 2.4 voxels). Precomputation on sponza (66k triangles): about 15 s
+at resolution 64 on the shared 2-core machine, mostly exact distances (voxels, gate
+openings and their edges).
+
+Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024, the IR baselines' VPL counts,
+so each rung compares with ir_shadowed at equal VPLs: the gather and the light assignment cost
+VPLs x gates, the topology (untimed) is shared by all rungs; voxel_resolution is not a rung (it
+changes the untimed precomputation only, and at 32 closes rooms' second door).
 
 | parameter           | default | range      | meaning                                                           |
 |---------------------|---------|------------|-------------------------------------------------------------------|
@@ -126,8 +166,8 @@ door (0.9 m, 2.4 voxels). Precomputation on sponza (66k triangles): about 10 s a
 | voxel_resolution    | 64      | 16 .. 256  | voxels along the scene's longest side (quality; 32 64 128)        |
 | alpha_percent       | 20      | 0 .. 1000  | radius similarity of clustered skeleton nodes (%)                 |
 | merge_gate_fraction | 0.75    | 0 .. 2     | merge clusters whose gate is >= this x the smaller's largest ball |
-| gate_radius_scale   | 1.0     | 0 .. 8     | gate ellipse size multiplier (0: no light through gates)          |
-| gate_hops           | 1       | 1 .. 16    | gates light may cross VPL -> pixel (1: into a neighbour, Fig. 11) |
+| gate_radius_scale   | 1.0     | 0 .. 8     | gate polygon size multiplier (0: no light through gates)          |
+| gate_hops           | 4       | 1 .. 16    | gates light may cross VPL -> pixel (1: into a neighbour, Fig. 11) |
 | use_gates           | true    | bool       | false: light stays inside visibility clusters (paper VI.B)        |
 | depth_slices        | 16      | 1 .. 256   | clustered-shading depth slices (exponential in depth)             |
 | clamp_distance_rel  | 1e-4    | 1e-7 .. 1  | eps of max(eps, d), relative to the scene radius                  |
@@ -152,7 +192,7 @@ from bench.method import FrameOutput, MethodBase, Param, SkipRow
 from methods.ir_unshadowed.method import CLAMP_DOC, VPL_COUNT_DOC
 from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler
 
-from .topology import Topology, TopologyError, build_topology
+from .topology import MAX_GATE_EDGES, Topology, TopologyError, build_topology
 
 SHADERS = Path(__file__).parent / "shaders"
 TILE = 16            # clustered-shading screen tile (pixels); TILE^2 = the local sort's size
@@ -162,7 +202,7 @@ SLICE_NEAR_REL = 1e-2  # view depth of the first slice boundary, relative to the
 GATE_DEFINES = dict(VPL_DEFINES, BINDING_GATES=7, BINDING_ADJ_RANGES=8, BINDING_ADJ_ENTRIES=9,
                     BINDING_VPL_CLUSTER=10, BINDING_GEO_CLUSTERS=11, BINDING_PIXEL_CLUSTER=12,
                     BINDING_CLUSTER_COUNT=13, BINDING_LIGHT_MASKS=14, TILE=TILE,
-                    CLUSTER_BITS=CLUSTER_BITS, LA_GROUP=LA_GROUP)
+                    CLUSTER_BITS=CLUSTER_BITS, LA_GROUP=LA_GROUP, MAX_GATE_EDGES=MAX_GATE_EDGES)
 
 _TOPOLOGY_CACHE: OrderedDict = OrderedDict()
 _CACHE_SIZE = 4
@@ -210,9 +250,10 @@ def adjacency_arrays(topo: Topology) -> tuple[np.ndarray, np.ndarray]:
 
 class VisibilityGates(MethodBase):
     name = "visibility_gates"
-    summary = "VPLs with visibility from empty-space topology: quasi-convex clusters joined by gate disks"
+    summary = "VPLs with visibility from empty-space topology: quasi-convex clusters joined by gate polygons"
     stages = ("vpl_sample", "geometry_clusters", "light_assignment", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm", "precompute"})
+    ladder = ({"vpl_count": 64}, {}, {"vpl_count": 1024})
     params = {
         "vpl_count": Param(256, VPL_COUNT_DOC, 1, 65536, quality=True, sweep=(16, 64, 256, 1024)),
         "voxel_resolution": Param(64, "voxels along the scene's longest bounding-box side (precomputation)",
@@ -221,9 +262,9 @@ class VisibilityGates(MethodBase):
                                      "is within alpha % of the cluster's largest", 0.0, 1000.0),
         "merge_gate_fraction": Param(0.75, "clusters joined by a gate at least this fraction as wide as the smaller "
                                           "cluster's largest maximal ball are merged (above 1: never)", 0.0, 2.0),
-        "gate_radius_scale": Param(1.0, "gate size multiplier (1: the ellipse of the opening, or the maximal-ball "
+        "gate_radius_scale": Param(1.0, "gate size multiplier (1: the polygon of the opening, or the maximal-ball "
                                         "disk in open space; 0: no light crosses gates)", 0.0, 8.0),
-        "gate_hops": Param(1, "gates a VPL's light may cross on its way to a pixel (1: into a neighbouring "
+        "gate_hops": Param(4, "gates a VPL's light may cross on its way to a pixel (1: into a neighbouring "
                               "cluster only, paper Fig. 11)", 1, 16),
         "use_gates": Param(True, "false: indirect light stays inside visibility clusters"),
         "depth_slices": Param(16, "clustered-shading depth slices, exponential in view depth", 1, 256),
@@ -262,20 +303,34 @@ class VisibilityGates(MethodBase):
         self.grid_tex = ctx.texture3d(topo.dims, 1, grid.tobytes(), dtype="i4")
         self.grid_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.grid_origin = tuple(float(v) for v in topo.origin - gpu.origin)
-        g = len(topo.gate_radius)
-        gates = np.zeros((max(g, 1), 3, 4), np.float32)  # Gate of topology.glsl
-        gates[:g, 0, :3] = topo.gate_centre - gpu.origin
-        gates[:g, 0, 3] = topo.gate_semi_axes[:, 0]
-        gates[:g, 1, :3] = topo.gate_normal
-        gates[:g, 1, 3] = topo.gate_semi_axes[:, 1]
-        gates[:g, 2, :3] = topo.gate_major
+        gs = topo.gates
+        g = len(gs.radius)
+        gates = np.zeros((max(g, 1), 4 + MAX_GATE_EDGES, 4), np.float32)  # Gate of topology.glsl
+        gates[:g, 0, :3] = gs.centre - gpu.origin
+        gates[:g, 0, 3] = gs.radius
+        gates[:g, 1, :3] = gs.normal
+        gates[:g, 1, 3] = gs.count
+        gates[:g, 2, :3] = gs.axis_u
+        gates[:g, 3, :2] = gs.sides.astype(np.int32).view(np.float32)
+        gates[:g, 4:, :3] = gs.halfplanes
         ranges, table = adjacency_arrays(topo)
         self.gates = ctx.buffer(gates.tobytes())
         self.adj_ranges = ctx.buffer(ranges.tobytes())
         self.adj_entries = ctx.buffer(table.tobytes())
         max_degree = int((ranges[:, 1] - ranges[:, 0]).max(initial=0))
-        # llvmpipe's loop limit counts the gate walk of every VPL too (bench.gl.context.LOOP_CHUNK)
-        self.chunk_words = max(1, LOOP_CHUNK // (32 * (1 + params["gate_hops"] * (1 + max_degree))))
+        # llvmpipe's loop limit counts the gate walk of every VPL too, each gate's edge loop
+        # included (bench.gl.context.LOOP_CHUNK): a draw sums whole words of 32 VPLs, or part of
+        # one word when a word's walks alone would pass the limit
+        per_vpl = 1 + params["gate_hops"] * (1 + max_degree * (1 + MAX_GATE_EDGES))
+        if per_vpl > LOOP_CHUNK:
+            raise SkipRow(f"scene '{scene.name}': gate_hops={params['gate_hops']} with clusters of {max_degree} "
+                          f"gates needs {per_vpl} shader loop iterations per VPL, over {LOOP_CHUNK}")
+        chunk_vpls = LOOP_CHUNK // per_vpl
+        if chunk_vpls >= 32:
+            self.draws = [(first, end, 0xFFFFFFFF) for first, end in loop_chunks(self.words, chunk_vpls // 32)]
+        else:
+            self.draws = [(w, w + 1, ((1 << end) - 1) & ~((1 << first) - 1))
+                          for w in range(self.words) for first, end in loop_chunks(32, chunk_vpls)]
 
         tiles = ((self.width + TILE - 1) // TILE, (self.height + TILE - 1) // TILE)
         self.tiles = tiles
@@ -349,8 +404,8 @@ class VisibilityGates(MethodBase):
             self._bind_topology(self.gather)
             set_uniforms(self.gather, u_width=self.width, u_vpl_count=self.vpl_count, u_words=self.words,
                          u_eps=float(self.eps))
-            for first, end in loop_chunks(self.words, self.chunk_words):
-                set_uniforms(self.gather, u_word_first=first, u_word_end=end)
+            for first, end, bits in self.draws:
+                set_uniforms(self.gather, u_word_first=first, u_word_end=end, u_bit_mask=bits)
                 self.gather_vao.render(moderngl.TRIANGLES, vertices=3)
             ctx.disable(moderngl.BLEND)
         return FrameOutput(direct=passes.direct.radiance, indirect=self.indirect, extra=dict(self.info))

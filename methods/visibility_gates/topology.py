@@ -22,13 +22,16 @@
    cluster's largest, plus every node reachable inside the popped node's maximal ball).
 5. `merge_wide_gates`: clusters joined by a paper gate (radius min(maxball(n1), maxball(n2)))
    at least `merge_fraction` x the smaller cluster's largest ball are merged. `gates_between`:
-   one gate per segmented edge joining two clusters, the ellipse of the opening of the empty
-   space at the narrowest node of the skeleton line the edge replaces (`opening_ellipse`), or
-   that node's maximal-ball disk where the opening is not bounded nearby.
+   one gate per segmented edge joining two clusters, the convex polygon of the opening of the
+   empty space at the narrowest node of the skeleton line the edge replaces, in the plane of
+   the opening's frame when there is one (`occluder_normal`, `opening_polygon`), or that
+   node's maximal-ball disk (a regular 16-gon) where the opening is not bounded nearby.
 6. `cluster_grid`: each empty voxel gets the cluster of its geodesically nearest skeleton node
-   (breadth-first flooding through the empty space, scikit-image's watershed); every other
-   voxel (surfaces, outside) the cluster of its nearest empty voxel, so a surface point looked
-   up one voxel off its surface along its normal finds its room.
+   (breadth-first flooding through the empty space cut along the gates, `gate_barrier`;
+   scikit-image's watershed); every other voxel (surfaces, outside) the cluster of its nearest
+   empty voxel, so a surface point looked up one voxel off its surface along its normal finds
+   its room; in the voxels a gate's plane cuts (the gate's and its wall's) the side of the
+   plane decides.
 """
 from __future__ import annotations
 
@@ -39,7 +42,7 @@ import numpy as np
 import trimesh
 from scipy import ndimage, sparse
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import ConvexHull, HalfspaceIntersection, cKDTree
 from skimage.morphology import skeletonize
 from skimage.segmentation import watershed
 
@@ -70,25 +73,33 @@ class Topology:
     segmented_edges: np.ndarray  # (E, 2) skeleton indices of the segmented skeleton's edges
     cluster_count: int
     greedy_cluster_count: int   # clusters of the paper's greedy step, before merge_wide_gates
-    gate_centre: np.ndarray     # (G, 3) world
-    gate_normal: np.ndarray     # (G, 3) unit normal of the gate's plane (along the skeleton; sign free)
-    gate_major: np.ndarray      # (G, 3) unit major axis of the gate's ellipse, in its plane
-    gate_semi_axes: np.ndarray  # (G, 2) semi-axes (major, minor) of the ellipse (m)
-    gate_clusters: np.ndarray   # (G, 2) the two clusters each gate separates
+    gates: "GateSet"            # convex polygon gates (centre, plane, half-planes, the clusters they join)
     empty_voxels: int
     closed_by_box: bool         # open scene: the empty space is closed by the enlarged bounding box
     timings_s: dict = field(default_factory=dict)
 
     @property
     def gate_radius(self) -> np.ndarray:
-        """(G,) radius of the ball holding each gate (its major semi-axis)."""
-        return self.gate_semi_axes[:, 0]
+        """(G,) radius of the ball around each gate's centre holding its polygon."""
+        return self.gates.radius
+
+    @property
+    def gate_clusters(self) -> np.ndarray:
+        return self.gates.pairs
 
     def cluster_of(self, points: np.ndarray) -> np.ndarray:
-        """Visibility cluster of world points (nearest voxel, clamped to the grid)."""
-        idx = np.floor((np.asarray(points, float) - self.origin) / self.pitch).astype(np.int64)
+        """Visibility cluster of world points (nearest voxel, clamped to the grid; in a gate's own
+        voxel, the side of the gate's plane the point is on)."""
+        points = np.asarray(points, float).reshape(-1, 3)
+        idx = np.floor((points - self.origin) / self.pitch).astype(np.int64)
         idx = np.clip(idx, 0, np.asarray(self.dims) - 1)
-        return self.cluster_grid[idx[:, 0], idx[:, 1], idx[:, 2]]
+        out = self.cluster_grid[idx[:, 0], idx[:, 1], idx[:, 2]].astype(np.int64)
+        at_gate = out < -1
+        if at_gate.any():
+            g = -out[at_gate] - 2
+            plus = np.einsum("pc,pc->p", points[at_gate] - self.gates.centre[g], self.gates.normal[g]) >= 0
+            out[at_gate] = self.gates.sides[g, plus.astype(int)]
+        return out
 
 
 # ----------------------------------------------------------------------------- 1. voxelization
@@ -413,22 +424,93 @@ def cluster(seg_nodes: np.ndarray, seg_edges: np.ndarray, pos, radius, kind, alp
 GATE_RASTER = 16     # half-width of the gate's cross-section raster, in raster cells
 GATE_REACH = 4.0     # the raster's half-width, in maximal-ball radii of the narrowest node
 TANGENT_STEPS = (1, 2, 3, 5, 8)  # skeleton nodes either side of the narrowest node: candidate normals
+MAX_GATE_EDGES = 16  # edges of a gate polygon (the GPU's Gate record holds this many half-planes)
+EDGE_SAMPLES = (0.3, 0.5, 0.7)   # where along a polygon edge its exact offset is measured
+EDGE_MARCH = 32      # distance samples along each outward march
+FRAME_ANGLE = 30.0   # degrees: triangles facing within this of the skeleton line frame an opening
+SIDE_REACH = 3.0     # gate radii: how far along its wall a gate's plane decides the side of a point
+AREA_TOLERANCE = 0.05  # candidate planes whose openings are this close in area count as equal
 
 
-def opening_ellipse(surface: "SurfaceIndex", centre: np.ndarray, normal: np.ndarray, reach: float, wall: float):
-    """The opening of the empty space in the plane (centre, normal): the region of the plane
-    around `centre` farther than `wall` from every triangle (exact distance; the voxels' own
-    OCCUPIED_DISTANCE, so a zero-thickness wall still bounds the plane through a skeleton node,
-    which lies beside it), rasterised at reach / GATE_RASTER (at most `wall`, so the
-    4-connected region never crosses a surface). Returns (centroid, unit major axis, semi-axes
-    a >= b) of the ellipse with the region's centroid and second moments (a uniform ellipse of
-    semi-axis a has variance a^2 / 4 along it), each semi-axis grown by 2 wall / sqrt(3) for the
-    band the threshold takes off the opening's border (exact for a rectangular opening:
-    a = width / sqrt(3) either way); None when the region reaches the raster's border (no bounded
-    opening there)."""
+@dataclass
+class GateSet:
+    """Convex polygon gates. Gate g lies in the plane through centre[g] normal to normal[g]; with
+    axis_u[g] and axis_v = normal x axis_u its points q (relative to the centre) satisfy
+    m_i . (q.u, q.v) <= offset_i for every half-plane (m_x, m_y, offset) of halfplanes[g, :count[g]]
+    (the centre is inside: offsets > 0, so scaling the offsets scales the polygon about it)."""
+    centre: np.ndarray       # (G, 3)
+    normal: np.ndarray       # (G, 3) unit, along the skeleton (sign free)
+    axis_u: np.ndarray       # (G, 3) unit, in the gate's plane
+    halfplanes: np.ndarray   # (G, MAX_GATE_EDGES, 3)
+    count: np.ndarray        # (G,) half-planes used
+    radius: np.ndarray       # (G,) largest distance of a vertex from the centre (bounding ball)
+    area: np.ndarray         # (G,) polygon area (m^2)
+    pairs: np.ndarray        # (G, 2) the two clusters each gate separates
+    sides: np.ndarray | None = None  # (G, 2) cluster on the -normal and +normal side (-1: the gate separates nothing)
+
+    @property
+    def axis_v(self) -> np.ndarray:
+        return np.cross(self.normal, self.axis_u)
+
+    def vertices(self, g: int) -> np.ndarray:
+        """(V, 2) vertices of gate g's polygon in its (u, v) frame, counter-clockwise."""
+        return _halfplane_polygon(self.halfplanes[g, :self.count[g]])
+
+
+def _plane_axes(normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     u = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
     u /= np.linalg.norm(u)
-    v = np.cross(normal, u)
+    return u, np.cross(normal, u)
+
+
+def _halfplane_polygon(halfplanes: np.ndarray) -> np.ndarray:
+    """Vertices (counter-clockwise) of {q : m_i . q <= o_i}, which holds the origin strictly."""
+    hs = np.column_stack([halfplanes[:, :2], -halfplanes[:, 2]])  # scipy: A q + b <= 0
+    pts = HalfspaceIntersection(hs, np.zeros(2)).intersections
+    hull = ConvexHull(pts)
+    return pts[hull.vertices]
+
+
+def _polygon_area(pts: np.ndarray) -> float:
+    x, y = pts[:, 0], pts[:, 1]
+    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+
+
+def _simplify_convex(pts: np.ndarray, max_vertices: int) -> np.ndarray:
+    """Drop the vertex whose removal loses the least area (Visvalingam) until max_vertices remain."""
+    pts = list(map(tuple, pts))
+    while len(pts) > max_vertices:
+        a = np.array(pts)
+        prev, nxt = np.roll(a, 1, axis=0), np.roll(a, -1, axis=0)
+        tri = 0.5 * np.abs((a[:, 0] - prev[:, 0]) * (nxt[:, 1] - prev[:, 1]) -
+                           (nxt[:, 0] - prev[:, 0]) * (a[:, 1] - prev[:, 1]))
+        pts.pop(int(np.argmin(tri)))
+    return np.array(pts)
+
+
+def regular_polygon_gate(radius: float, edges: int = MAX_GATE_EDGES) -> np.ndarray:
+    """Half-planes of the regular polygon with the area of the disk of `radius` (the paper's disk)."""
+    apothem = radius * np.sqrt(np.pi / (edges * np.tan(np.pi / edges)))
+    ang = 2.0 * np.pi * np.arange(edges) / edges
+    return np.column_stack([np.cos(ang), np.sin(ang), np.full(edges, apothem)])
+
+
+def opening_polygon(surface: "SurfaceIndex", centre: np.ndarray, normal: np.ndarray, reach: float, wall: float):
+    """The opening of the empty space in the plane (centre, normal), as a convex polygon.
+
+    The region of the plane around `centre` farther than `wall` from every triangle (exact
+    distance; the voxels' own OCCUPIED_DISTANCE, so a zero-thickness wall still bounds the plane
+    through a skeleton node, which lies beside it) is rasterised at reach / GATE_RASTER (at most
+    `wall`, so the 4-connected region never crosses a surface); its convex hull, simplified to
+    MAX_GATE_EDGES edges, gives the edges' directions, and each edge is then placed where the
+    opening really ends: marching outward from the edge (normal m), the region ends at s_f
+    (distance = wall) and the occluder's nearest approach beyond is d_min, so the opening's
+    border lies sqrt(wall^2 - d_min^2) beyond s_f (exact for an occluder's edge parallel to the
+    gate's edge: a thin wall d_min = its offset from the plane, a thick one 0; the median of
+    EDGE_SAMPLES along the edge). A rectangular door gives its rectangle. Returns (the
+    region's centroid (the gate's centre), unit u axis, half-planes (E, 3) relative to the
+    centroid), or None when the region reaches the raster's border (no bounded opening there)."""
+    u, v = _plane_axes(normal)
     h = min(reach / GATE_RASTER, wall)
     n = int(np.ceil(reach / h))
     t = (np.arange(2 * n + 1) - n) * h
@@ -444,55 +526,136 @@ def opening_ellipse(surface: "SurfaceIndex", centre: np.ndarray, normal: np.ndar
         return None
     uv = np.stack([su[region], sv[region]], axis=1)
     mean = uv.mean(axis=0)
-    lam, vec = np.linalg.eigh(np.cov(uv.T, bias=True) + np.eye(2) * h * h / 12.0)
-    semi = 2.0 * np.sqrt(lam[::-1]) + 2.0 * wall / np.sqrt(3.0)
-    major = vec[0, 1] * u + vec[1, 1] * v
-    return centre + mean[0] * u + mean[1] * v, major / np.linalg.norm(major), semi
+    uv = uv - mean
+    if len(uv) >= 3 and np.linalg.matrix_rank(uv - uv[0], tol=1e-9 * h) == 2:
+        hull = _simplify_convex(uv[ConvexHull(uv).vertices], MAX_GATE_EDGES)
+    else:  # a region one cell wide: its cells' own squares
+        hull = np.concatenate([uv + 0.5 * h * np.array(c) for c in ((-1, -1), (1, -1), (1, 1), (-1, 1))])
+        hull = _simplify_convex(hull[ConvexHull(hull).vertices], MAX_GATE_EDGES)
+    nxt = np.roll(hull, -1, axis=0)
+    edge = nxt - hull
+    m = np.column_stack([edge[:, 1], -edge[:, 0]])  # outward for a counter-clockwise hull
+    m /= np.linalg.norm(m, axis=1, keepdims=True)
+    base = np.einsum("ec,ec->e", m, hull)
+    # exact placement of every edge: march outward from EDGE_SAMPLES points of it
+    frac = np.asarray(EDGE_SAMPLES)
+    starts = hull[:, None] + frac[None, :, None] * edge[:, None]                   # (E, S, 2)
+    span = h + 3.0 * wall
+    s = np.linspace(0.0, span, EDGE_MARCH)
+    q = starts[:, :, None] + s[None, None, :, None] * m[:, None, None]            # (E, S, K, 2)
+    world = centre + (mean[0] + q[..., 0:1]) * u + (mean[1] + q[..., 1:2]) * v
+    d = surface.distance(world.reshape(-1, 3)).reshape(q.shape[:3])
+    inside = d > wall
+    first = np.argmin(inside, axis=2)                                             # first sample at or below wall
+    ends = np.where(inside.all(axis=2), EDGE_MARCH - 1, first)
+    i0 = np.maximum(ends - 1, 0)
+    d0 = np.take_along_axis(d, i0[..., None], 2)[..., 0]
+    d1 = np.take_along_axis(d, ends[..., None], 2)[..., 0]
+    w = np.clip((d0 - wall) / np.maximum(d0 - d1, 1e-30), 0.0, 1.0)
+    s_f = s[i0] + w * (s[ends] - s[i0])
+    beyond = s[None, None, :] >= s_f[..., None] - 1e-12
+    beyond &= s[None, None, :] <= s_f[..., None] + 2.0 * wall
+    d_min = np.where(beyond, d, np.inf).min(axis=2)
+    d_min = np.where(np.isfinite(d_min), d_min, wall)
+    offset = np.median(s_f + np.sqrt(np.maximum(wall * wall - d_min * d_min, 0.0)), axis=1)
+    halfplanes = np.column_stack([m, base + offset])
+    return centre + mean[0] * u + mean[1] * v, u, halfplanes
+
+
+def occluder_normal(surface: "SurfaceIndex", centre: np.ndarray, tangent: np.ndarray, reach: float):
+    """The area-weighted mean normal of the triangles within `reach` of `centre` that face along
+    the skeleton (within FRAME_ANGLE of `tangent`): the plane of the wall an opening is cut in,
+    or None when no such triangle is near."""
+    t = tangent / np.linalg.norm(tangent)
+    near = surface.tree.query_ball_point(centre, reach)
+    if not near:
+        return None
+    tris = np.unique(surface.owner[np.asarray(near, np.int64)])
+    v = surface.vertices[surface.faces[tris]]
+    cross = np.cross(v[:, 1] - v[:, 0], v[:, 2] - v[:, 0])  # |cross| = 2 area
+    length = np.linalg.norm(cross, axis=1)
+    ok = length > 0
+    normals = cross[ok] / length[ok, None]
+    along = normals @ t
+    keep = np.abs(along) >= np.cos(np.radians(FRAME_ANGLE))
+    if not keep.any():
+        return None
+    weight = length[ok][keep]
+    mean = (normals[keep] * (np.sign(along[keep]) * weight)[:, None]).sum(axis=0)
+    mean /= np.linalg.norm(mean)
+    offset = float(np.average((v[ok][keep].mean(axis=1) - centre) @ mean, weights=weight))
+    return mean, offset
 
 
 def gates_between(seg_edges: np.ndarray, edge_lines: dict, seg_cluster: dict, pos: np.ndarray,
-                  radius: np.ndarray, surface: "SurfaceIndex | None" = None, wall: float = 0.0):
-    """One gate per segmented edge joining two clusters: (centres, unit normals, unit major axes,
-    semi-axes (G, 2), pairs). Without `surface`, the paper's disk (middle of the edge,
-    orthogonal to it, radius min(maxball(n1), maxball(n2))). With it, the ellipse of the opening
-    at the narrowest node of the skeleton line the edge replaces: of the planes through that
-    node normal to the line there (tangents over TANGENT_STEPS nodes either side) or to the
-    edge, the one whose bounded opening is smallest; or the disk of the node's maximal ball,
-    normal to the line, when no such plane has a bounded opening nearby."""
-    centres, normals, majors, semi, pairs = [], [], [], [], []
+                  radius: np.ndarray, surface: "SurfaceIndex | None" = None, wall: float = 0.0) -> GateSet:
+    """One gate per segmented edge joining two clusters. Without `surface`, the paper's disk
+    (middle of the edge, orthogonal to it, radius min(maxball(n1), maxball(n2))), as the regular
+    MAX_GATE_EDGES-gon of its area. With it, the polygon of the opening at the narrowest node of
+    the skeleton line the edge replaces: of the planes through that node normal to the line
+    there (tangents over TANGENT_STEPS nodes either side) or to the edge, the one whose bounded
+    opening is smallest; or the disk of the node's maximal ball, normal to the line, when no
+    such plane has a bounded opening nearby."""
+    centres, normals, axes, planes, pairs = [], [], [], [], []
     for a, b in seg_edges:
         ca, cb = seg_cluster[int(a)], seg_cluster[int(b)]
         if ca == cb:
             continue
         pairs.append((ca, cb))
+        found = None
         if surface is None:
             d = pos[b] - pos[a]
             centre, normal, r = 0.5 * (pos[a] + pos[b]), d / np.linalg.norm(d), min(radius[a], radius[b])
-            ellipse = None
         else:
             line = edge_lines[(int(a), int(b))]
             k = int(np.argmin(radius[line]))
             centre, r = pos[line[k]], radius[line[k]]
-            candidates = [pos[line[min(k + j, len(line) - 1)]] - pos[line[max(k - j, 0)]] for j in TANGENT_STEPS]
-            normals_tried = []
-            for d in candidates + [pos[b] - pos[a]]:  # distinct directions only (within ~3 degrees)
-                if np.linalg.norm(d) > 0 and all(abs(d @ e) < 0.9986 * np.linalg.norm(d) for e in normals_tried):
-                    normals_tried.append(d / np.linalg.norm(d))
-            normal, ellipse = normals_tried[0], None
-            for cand in normals_tried:
-                found = opening_ellipse(surface, centre, cand, GATE_REACH * r, wall)
-                if found is not None and (ellipse is None or np.prod(found[2]) < np.prod(ellipse[2])):
-                    normal, ellipse = cand, found
-        if ellipse is None:
-            major = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
-            ellipse = (centre, major / np.linalg.norm(major), np.array([r, r]))
-        centres.append(ellipse[0])
+            candidates = [pos[line[min(k + j, len(line) - 1)]] - pos[line[max(k - j, 0)]]
+                          for j in TANGENT_STEPS[::-1]]  # the widest tangent first
+            trial = []  # (point, unit normal): distinct directions only (within ~3 degrees)
+            frame = occluder_normal(surface, centre, candidates[0], GATE_REACH * r)
+            if frame is not None:  # the plane of the opening's frame (a door's wall) comes first
+                trial.append((centre + np.clip(frame[1], -r, r) * frame[0], frame[0]))
+            for d in candidates + [pos[b] - pos[a]]:
+                if np.linalg.norm(d) > 0 and all(abs(d @ e) < 0.9986 * np.linalg.norm(d) for _, e in trial):
+                    trial.append((centre, d / np.linalg.norm(d)))
+            openings = [(cand, opening_polygon(surface, point, cand, GATE_REACH * r, wall)) for point, cand in trial]
+            openings = [(cand, o, _polygon_area(_halfplane_polygon(o[2]))) for cand, o in openings if o is not None]
+            normal = trial[0][1]
+            if openings:
+                smallest = min(area for _, _, area in openings)
+                # the first (the frame's plane, then the widest tangent) within the measurement's
+                # accuracy of the smallest: a plane tilted against a thin wall measures a few %
+                # small (its edges are not parallel to the wall's), the frame's plane exact
+                normal, found, _ = next(o for o in openings if o[2] <= (1.0 + AREA_TOLERANCE) * smallest)
+        if found is None:
+            found = (centre, _plane_axes(normal)[0], regular_polygon_gate(r))
+        centres.append(found[0])
         normals.append(normal)
-        majors.append(ellipse[1])
-        semi.append(ellipse[2])
-    return (np.array(centres, float).reshape(-1, 3), np.array(normals, float).reshape(-1, 3),
-            np.array(majors, float).reshape(-1, 3), np.array(semi, float).reshape(-1, 2),
-            np.array(pairs, np.int64).reshape(-1, 2))
+        axes.append(found[1])
+        planes.append(found[2])
+    g = len(planes)
+    halfplanes = np.zeros((g, MAX_GATE_EDGES, 3))
+    count = np.zeros(g, np.int64)
+    radii, areas = np.zeros(g), np.zeros(g)
+    for i, hp in enumerate(planes):
+        halfplanes[i, :len(hp)] = hp
+        count[i] = len(hp)
+        verts = _halfplane_polygon(hp)
+        radii[i] = np.linalg.norm(verts, axis=1).max()
+        areas[i] = _polygon_area(verts)
+    return GateSet(centre=np.array(centres, float).reshape(-1, 3), normal=np.array(normals, float).reshape(-1, 3),
+                   axis_u=np.array(axes, float).reshape(-1, 3), halfplanes=halfplanes, count=count, radius=radii,
+                   area=areas, pairs=np.array(pairs, np.int64).reshape(-1, 2))
+
+
+def paper_gate_radii(seg_edges: np.ndarray, seg_cluster: dict, radius: np.ndarray):
+    """The paper's gate radius min(maxball(n1), maxball(n2)) of every segmented edge joining two
+    clusters, and the pairs it joins."""
+    rows = [(min(radius[a], radius[b]), seg_cluster[int(a)], seg_cluster[int(b)]) for a, b in seg_edges
+            if seg_cluster[int(a)] != seg_cluster[int(b)]]
+    arr = np.array(rows, float).reshape(-1, 3)
+    return arr[:, 0], arr[:, 1:].astype(np.int64)
 
 
 def merge_wide_gates(count: int, cluster_radius: np.ndarray, gate_radius: np.ndarray, gate_pairs: np.ndarray,
@@ -532,19 +695,91 @@ def merge_wide_gates(count: int, cluster_radius: np.ndarray, gate_radius: np.nda
 
 
 # ----------------------------------------------------------------------------- 6. voxel -> cluster
-def cluster_grid(empty: np.ndarray, skel_coords: np.ndarray, node_cluster: np.ndarray) -> np.ndarray:
-    """Visibility cluster of every voxel. Empty voxels: the cluster of the geodesically nearest
-    skeleton node (6-connected steps through the empty space): scikit-image's watershed of a
-    flat image from the skeleton nodes floods breadth first, in order of arrival, which is that
-    (ties between two nodes aside). Every other voxel: the cluster of its nearest empty voxel."""
+def gate_barrier(empty: np.ndarray, origin: np.ndarray, pitch: float, gates: GateSet) -> tuple[np.ndarray, np.ndarray]:
+    """The gates rasterised into the voxel grid. For every gate, its layer: the voxels of its
+    standard digital plane (n.(c - g) / pitch in [-|n|_1 / 2, |n|_1 / 2): no 6-connected path
+    crosses it) within SIDE_REACH gate radii of its centre. Returns int32 grids holding the gate's
+    index (else -1): `barrier`, the layer's empty voxels whose centre projects inside the polygon
+    grown by one voxel (closing the gap to the occupied voxels of the opening's border), and
+    `sided`, the barrier and the layer's occupied voxels connected to it in the layer (the wall
+    the opening is cut in), where a voxel holds points of both clusters."""
+    barrier = -np.ones(empty.shape, np.int32)
+    sided = -np.ones(empty.shape, np.int32)
+    dims = np.asarray(empty.shape)
+    for g in range(len(gates.radius)):
+        c, n, u = gates.centre[g], gates.normal[g], gates.axis_u[g]
+        v = np.cross(n, u)
+        reach = SIDE_REACH * gates.radius[g] + 2.0 * pitch
+        lo = np.clip(np.floor((c - reach - origin) / pitch).astype(np.int64), 0, dims - 1)
+        hi = np.clip(np.ceil((c + reach - origin) / pitch).astype(np.int64), 0, dims - 1)
+        box = tuple(slice(a, b + 1) for a, b in zip(lo, hi))
+        idx = np.stack(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"), -1)
+        rel = origin + (idx + 0.5) * pitch - c
+        side = rel @ n / pitch
+        half = 0.5 * np.abs(n).sum()
+        layer = (side >= -half) & (side < half)
+        q = np.stack([rel @ u, rel @ v], axis=-1)
+        hp = gates.halfplanes[g, :gates.count[g]]
+        inside = np.all(q @ hp[:, :2].T <= hp[:, 2] + pitch, axis=-1)
+        gate = layer & inside & empty[box]
+        frame = layer & (gate | ~empty[box])
+        labels, _ = ndimage.label(frame, structure=np.ones((3, 3, 3), bool))
+        wall = np.isin(labels, np.unique(labels[gate])) & (labels > 0)
+        barrier[box][gate] = g
+        sided[box][wall] = g
+    return barrier, sided
+
+
+def cluster_grid(empty: np.ndarray, skel_coords: np.ndarray, node_cluster: np.ndarray,
+                 barrier: np.ndarray | None = None, sided: np.ndarray | None = None, gates: GateSet | None = None,
+                 origin: np.ndarray | None = None, pitch: float = 1.0) -> np.ndarray:
+    """Visibility cluster of every voxel. The gates separate the clusters (paper VII: "if the
+    visibility gates were perfect manifolds separating clusters"): the empty space is cut along
+    `barrier` (the rasterised gates, `gate_barrier`); a cluster lives in the cut component
+    holding most of its skeleton nodes, its nodes in other components (a door's nodes beyond the
+    door's gate) are not seeds. Empty voxels: the cluster of the geodesically nearest seed node
+    (6-connected steps through the cut empty space): scikit-image's watershed of a flat image
+    floods breadth first, in order of arrival, which is that (ties between two nodes aside).
+    Every other voxel (surfaces, outside): the cluster of its nearest labelled voxel. The voxels
+    `sided` (a gate's own, and its wall's in its plane) hold -(gate + 2) when the clusters on
+    the gate's two sides differ: the side of the gate's plane decides there (`Topology.cluster_of`,
+    `cluster_at` in topology.glsl); `gates.sides` is set."""
+    node_cluster = np.asarray(node_cluster)
+    cut = empty if barrier is None else empty & (barrier < 0)
+    seed = cut[tuple(skel_coords.T)]
+    if barrier is not None and (barrier >= 0).any():
+        comp, _ = ndimage.label(cut)  # 6-connectivity, as the flooding
+        node_comp = comp[tuple(skel_coords.T)]
+        for c in np.unique(node_cluster):
+            mine = seed & (node_cluster == c)
+            if mine.any():
+                home = np.bincount(node_comp[mine]).argmax()
+                seed &= ~((node_cluster == c) & (node_comp != home))
     markers = np.zeros(empty.shape, np.int32)
-    markers[tuple(skel_coords.T)] = np.asarray(node_cluster) + 1
-    flooded = watershed(np.zeros(empty.shape, np.uint8), markers, connectivity=1, mask=empty)
+    markers[tuple(skel_coords[seed].T)] = node_cluster[seed] + 1
+    flooded = watershed(np.zeros(empty.shape, np.uint8), markers, connectivity=1, mask=cut)
     grid = flooded.astype(np.int32) - 1
-    # unreached empty voxels (none when every component holds a skeleton node) and every other
-    # voxel: the cluster of the nearest labelled voxel
+    # unreached empty voxels (none when every component holds a seed) and every other voxel:
+    # the cluster of the nearest labelled voxel
     _, nearest_idx = ndimage.distance_transform_edt(grid < 0, return_indices=True)
-    return grid[tuple(nearest_idx)].astype(np.int32)
+    filled = grid[tuple(nearest_idx)].astype(np.int32)
+    if gates is not None and barrier is not None:
+        sides = -np.ones((len(gates.radius), 2), np.int64)
+        dims = np.asarray(empty.shape)
+        for g in range(len(gates.radius)):
+            for j, sign in enumerate((-1.0, 1.0)):
+                for k in range(1, 6):  # the first flooded voxel beside the gate along its normal
+                    v = np.floor((gates.centre[g] + sign * k * pitch * gates.normal[g] - origin) / pitch).astype(int)
+                    if np.all((v >= 0) & (v < dims)) and grid[tuple(v)] >= 0:
+                        sides[g, j] = grid[tuple(v)]
+                        break
+            if sides[g, 0] < 0 or sides[g, 1] < 0 or sides[g, 0] == sides[g, 1]:
+                sides[g] = -1
+        gates.sides = sides
+        if len(sides):
+            split = (sided >= 0) & (sides[np.maximum(sided, 0), 0] >= 0)
+            filled[split] = -(sided[split] + 2)
+    return filled
 
 
 # ----------------------------------------------------------------------------- all steps
@@ -578,19 +813,18 @@ def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alp
     cluster_radius = np.zeros(count)
     for node, c in label.items():
         cluster_radius[c] = max(cluster_radius[c], radius[node])
-    _, _, _, paper_r, paper_pairs = gates_between(seg_edges, edge_lines, label, pos, radius)
-    relabel, count = merge_wide_gates(count, cluster_radius, paper_r[:, 0], paper_pairs, merge_fraction)
+    paper_r, paper_pairs = paper_gate_radii(seg_edges, label, radius)
+    relabel, count = merge_wide_gates(count, cluster_radius, paper_r, paper_pairs, merge_fraction)
     label = {node: int(relabel[c]) for node, c in label.items()}
-    centres, normals, majors, semi, pairs = gates_between(seg_edges, edge_lines, label, pos, radius, surface,
-                                                          OCCUPIED_DISTANCE * pitch)
+    gates = gates_between(seg_edges, edge_lines, label, pos, radius, surface, OCCUPIED_DISTANCE * pitch)
     node_cluster = np.array([label[int(association[i])] for i in range(len(coords))], np.int32)
     timings["segment_cluster_gates"] = time.perf_counter() - t
     t = time.perf_counter()
-    grid = cluster_grid(empty, coords, node_cluster)
+    barrier, sided = gate_barrier(empty, origin, pitch, gates)
+    grid = cluster_grid(empty, coords, node_cluster, barrier, sided, gates, origin, pitch)
     timings["cluster_grid"] = time.perf_counter() - t
     return Topology(origin=origin, pitch=pitch, dims=tuple(int(x) for x in empty.shape), cluster_grid=grid,
                     node_position=pos, node_radius=radius, node_kind=kind, node_segment=association,
                     node_cluster=node_cluster, segmented_edges=seg_edges, cluster_count=count,
-                    greedy_cluster_count=greedy_count, gate_centre=centres, gate_normal=normals,
-                    gate_major=majors, gate_semi_axes=semi, gate_clusters=pairs, empty_voxels=int(empty.sum()),
+                    greedy_cluster_count=greedy_count, gates=gates, empty_voxels=int(empty.sum()),
                     closed_by_box=closed_by_box, timings_s=timings)

@@ -240,21 +240,6 @@ def test_progressive_converges_to_manylights(gl_ctx):
     assert errors[2] < 1e-3
 
 
-def _refined_big_floor():
-    """big_floor with its 4 huge triangles cut into <= 0.5 m edges: what `manylights` (one VPL per
-    triangle) needs to see the floor's lit spot; the surfaces and light are the same."""
-    import trimesh
-    from bench.corpus import load_scene
-    from bench.scene import Scene
-    scene = load_scene("big_floor")
-    big = scene.areas() > 1.0
-    v, f, idx = trimesh.remesh.subdivide_to_size(scene.vertices, scene.faces[big], max_edge=0.5, return_index=True)
-    fine = Scene.build("big_floor_fine", np.concatenate([scene.vertices, v]),
-                       np.concatenate([scene.faces[~big], f + len(scene.vertices)]),
-                       np.concatenate([scene.albedo[~big], scene.albedo[big][idx]]), scene.lights, scene.cameras)
-    return scene, fine
-
-
 def test_multilevel_regular_pass_converges_to_manylights(gl_ctx):
     """Three levels, every triangle regular (no divergent pass): the regular pipeline alone,
     progressive with the last level unbounded, against the exact jittered sum."""
@@ -299,33 +284,24 @@ def test_vpl_irradiance_uses_the_shading_normal(gl_ctx):
     assert b.mean() / a.mean() == pytest.approx(expected, rel=1e-3)
 
 
-def test_big_floor_needs_the_divergent_pass(gl_ctx):
-    scene, fine = _refined_big_floor()
-    reference = run_method(gl_ctx, ManyLights, fine, "main", 48, 36, {"emission": "flc"}, frames=1).indirect.mean()
-    # D_near = 0.05 R (R is inflated by the 80 m floor): the floor's small lit spot then holds
-    # many VPLs per sub-frame, so 16 sub-frames measure the mean within a few percent
-    params = dict(tiling_level=0, blur_radius=0, progressive_frames=16, dnear_factor=0.05)
-    on = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, params, frames=1)
-    off = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, dict(params, divergent_pass=False), frames=1)
-    assert on.extra["divergent_triangles"] == 4 and "divergent" not in on.skipped_stages
-    assert "divergent" in off.skipped_stages
-    # without it the floor's bounce, nearly all the indirect light of the view, is lost
-    assert off.indirect.mean() < 0.1 * reference
-    # with it, agreement with the exact sum within the noise of 16 progressive frames
-    assert on.indirect.mean() == pytest.approx(reference, rel=0.15)
-
-
-def test_triangles_beyond_the_top_tessellation_level_are_presplit(gl_ctx):
-    """At n_avg = 4096 the open box's 2 m^2 triangles need more than tessellation level 64
-    (area / S_bar_N > 1 / fmax(64)): each is appended as 2 x 2 sub-patches, and the result still
-    agrees with the exact sum."""
+def test_divergent_triangles_are_presplit_into_sub_patches(gl_ctx):
+    """At n_avg = 4096 the open box's 2 m^2 triangles need more than tessellation level
+    TESS_SUB_LEVEL: each is appended as m x m equal sub-patches (m > 1) that this level makes
+    regular, and the result still agrees with the exact sum."""
+    from bench.scene import compute_facts
+    from methods.flc.levels import presplit_count
+    from methods.flc.method import CPU_MARGIN, TESS_SUB_LEVEL
+    from methods.flc.tessellation import measure_fmax
     scene = make_open_box()
     params = dict(EXACT, n_avg=4096, levels=3, eps_rel=0.05, progressive_frames=16, reach="eq18_printed")
     r = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, params, frames=1)
     ml = run_method(gl_ctx, ManyLights, scene, "main", 48, 36, {"emission": "flc", "jitter_frames": 256, "eps_rel": 0.05},
                     frames=1)
     assert r.extra["divergent_triangles"] == 6
-    assert r.extra["divergent_patch_vertices"] == 6 * 4 * 3
+    area = compute_facts(scene).area_max_m2
+    m = int(presplit_count(area * (1 + CPU_MARGIN), measure_fmax(gl_ctx)[TESS_SUB_LEVEL - 1],
+                           r.extra["S_bar_N_m2"] * (1 - CPU_MARGIN)))
+    assert m > 1 and r.extra["divergent_patch_vertices"] == 6 * m * m * 3
     assert rel_mse(r.indirect, ml.indirect) < 0.03
 
 

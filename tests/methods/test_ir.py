@@ -255,3 +255,11 @@ def test_rsm_flux_takes_the_shading_normal_cosine(gl_ctx):
         passes.release()
         gpu.release()
     assert total == pytest.approx(0.5 * 3.0 * np.cos(tilt) * 4.0, rel=0.02)
+
+
+def test_shadowed_skips_a_row_over_its_triangle_draw_budget(gl_ctx):
+    from bench.method import SkipRow
+    # 6 triangles x 256 VPLs = 1536 draws: over a budget of 1000, one line with the figures
+    with pytest.raises(SkipRow, match="1,536 triangle draws"):
+        run_method(gl_ctx, InstantRadiosityShadowed, make_open_box(), "main", 16, 16,
+                   {"max_triangle_draws": 1000}, frames=1)

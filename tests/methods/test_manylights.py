@@ -193,3 +193,16 @@ def test_centroid_vpls_miss_a_small_spot_and_jitter_converges():
     assert ref.mean[m].mean() > 0
     assert abs(centroid[m].mean() / ref.mean[m].mean() - 1) > 0.5
     assert abs(jittered[m].mean() / ref.mean[m].mean() - 1) < 0.15
+
+
+def test_float32_slivers_emit_nothing_instead_of_nan(gl_ctx):
+    # 1e-6-aspect slivers on the rooms' surfaces: their float32 cross product can vanish; the
+    # normalised normal then made every pixel they reach NaN (the stress suite's degenerate row)
+    from bench.corpus import load_scene
+    from bench.stress_perturb import sliver
+    base = load_scene("rooms")
+    scene = sliver(base, count=32, seed=0)
+    out = run_method(gl_ctx, ManyLights, scene, "main", 32, 24, {}, frames=1)
+    ref = run_method(gl_ctx, ManyLights, base, "main", 32, 24, {}, frames=1)
+    assert np.isfinite(out.indirect).all()
+    assert abs(out.indirect.mean() / ref.indirect.mean() - 1.0) < 0.01

@@ -96,10 +96,12 @@ def test_ssdo_with_on_screen_senders_beats_no_indirect(gl_ctx):
         # where SSDO puts light, the exact bounce has light too
         lit = ssdo.sum(axis=2) > 0.01 * ssdo.sum(axis=2).max()
         assert np.all(ref.sum(axis=2)[lit] > 0)
-    # a larger hemisphere reaches more of the visible senders
-    assert indirect(gl_ctx, Ssdo, "cornell_floor_spot", {"radius_rel": 1.0}).mean() > \
-        indirect(gl_ctx, Ssdo, "cornell_floor_spot").mean() > \
-        indirect(gl_ctx, Ssdo, "cornell_floor_spot", {"radius_rel": 0.25}).mean()
+    # a small hemisphere misses most of the visible senders; the default one already reaches them
+    # (with each sample's true patch area, a larger one adds no sender, so no more light)
+    small = indirect(gl_ctx, Ssdo, "cornell_floor_spot", {"radius_rel": 0.25}).mean()
+    default = indirect(gl_ctx, Ssdo, "cornell_floor_spot").mean()
+    large = indirect(gl_ctx, Ssdo, "cornell_floor_spot", {"radius_rel": 1.0}).mean()
+    assert small < 0.5 * default and default > 0.8 * large, (small, default, large)
 
 
 @pytest.mark.parametrize("name", ["dss", "flc"])

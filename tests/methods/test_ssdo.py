@@ -20,7 +20,7 @@ from bench.harness import run_method
 from bench.method import ParamError, resolve_params
 from bench.scene import Camera, DirectionalLight, PointLight, Scene, compute_facts
 from methods.manylights.method import ManyLights
-from methods.ssdo.method import RADIUS_VIEW_REL, SHADERS
+from methods.ssdo.method import RADIUS_VIEW_REL, SHADERS, SSDO_DEFINES
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
 from methods.ssdo.screen_bound import screen_sender_bounce
 from tests.conftest import grid_quad, make_grid_box, scene_from_parts
@@ -49,14 +49,42 @@ def make_corner(n=16, eye=CORNER_EYE):
                        {"main": Camera(list(eye), [0, 0.3, 0], fov_y_deg=50)})
 
 
+def column_density(x, n_x, y, n_y, eye, r_max, d_clamp):
+    """indirect_samples.glsl's p(y): density per unit sender area of a blocked sample landing
+    behind y (the paper's samples: uniform direction, uniform step), by the same 3-point
+    Gauss-Legendre rule over the camera-ray column inside the ball and above x's tangent plane."""
+    ray = y - eye
+    t_y = np.linalg.norm(ray, axis=1)
+    u = ray / t_y[:, None]
+    ex = eye - x
+    bq = u @ ex
+    root = np.sqrt(np.maximum(bq * bq - (ex @ ex - r_max ** 2), 0.0))
+    t_in, t_out = np.maximum(-bq - root, t_y), -bq + root
+    a_n, c_n = ex @ n_x, u @ n_x
+    with np.errstate(divide="ignore"):
+        cut = -a_n / c_n
+    t_in = np.where(c_n > 0, np.maximum(t_in, cut), t_in)
+    t_out = np.where(c_n < 0, np.minimum(t_out, cut), t_out)
+    length = np.maximum(t_out - t_in, 0.0)
+    mid = t_in + 0.5 * length
+    mean = 0.0
+    for node, weight in ((-np.sqrt(0.6), 5 / 18), (0.0, 8 / 18), (np.sqrt(0.6), 5 / 18)):
+        tg = mid + node * 0.5 * length
+        pg = eye + tg[:, None] * u - x
+        mean = mean + weight * tg ** 2 / np.maximum((pg * pg).sum(axis=1), d_clamp ** 2)
+    seg = np.maximum(length, SSDO_DEFINES["MIN_COLUMN_REL"] * r_max)
+    return np.abs(u @ n_y) * mean * seg / (2 * np.pi * r_max * t_y ** 2)
+
+
 def ssdo_model(x, camera, r_max, radiance, clamp, samples=100_000, seed=0):
     """Expected value of the SSDO estimate at wall point x (normal +z) of `make_corner`, by Monte
-    Carlo over the same sample distribution (uniform in the hemisphere's volume)."""
+    Carlo over the same sample distribution (the paper's: uniform direction on the hemisphere,
+    uniform step in [0, r_max]) with each blocked sample's patch area 1 / (N p(y))."""
     rng = np.random.default_rng(seed)
     u1, u2, u3 = rng.random((3, samples))
     sin_t, phi = np.sqrt(1.0 - u1 ** 2), 2.0 * np.pi * u2
-    s = x + np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), u1], 1) * (r_max * np.cbrt(u3))[:, None]
-    eye = camera.eye
+    s = x + np.stack([sin_t * np.cos(phi), sin_t * np.sin(phi), u1], 1) * (r_max * u3)[:, None]
+    eye = np.asarray(camera.eye, dtype=np.float64)
     right, up, fwd = camera.basis()
     rel = s - eye
     depth = rel @ fwd
@@ -69,8 +97,9 @@ def ssdo_model(x, camera, r_max, radiance, clamp, samples=100_000, seed=0):
     d = np.linalg.norm(w, axis=1)
     w /= d[:, None]
     term = radiance * np.clip(w[:, 2], 0, None) * np.clip(-w[:, 1], 0, None) / np.maximum(clamp, d) ** 2
-    # sum over N samples of A_s term = pi r^2 * mean over samples (A_s = pi r^2 / N)
-    return RHO / np.pi * np.pi * r_max ** 2 * np.where(blocked, term, 0.0).mean()
+    p = column_density(x, np.array([0.0, 0.0, 1.0]), y, np.array([0.0, 1.0, 0.0]), eye, r_max, clamp)
+    # sum over N samples of term / (N p) = mean over samples of term / p
+    return RHO / np.pi * np.where(blocked, term / np.where(blocked, p, 1.0), 0.0).mean()
 
 
 def wall_bands(gbuffer, bands):
@@ -176,11 +205,10 @@ def test_matches_a_numpy_model_of_the_estimator(gl_ctx):
 
 def test_corner_approaches_manylights(gl_ctx):
     """Many samples and r_max = scene radius, wall 0.1 .. 0.8 m above the corner: SSDO within
-    [0.65, 1.3] x the exact bounce. Why not tighter: SSDO is not a consistent estimator; its
-    blocked samples stand for area pi r_max^2 / N (exact only for a plane through x), their
-    senders slide along camera rays by depth * cot(elevation), and nothing beyond r_max counts.
-    The numpy model of the estimator (test above) puts its own bias here at -20% .. +5%; a
-    wrong factor (pi, A_s, a missing cosine) would be off by 2x or more."""
+    [0.65, 1.3] x the exact bounce. Why not tighter: SSDO only counts first-layer, on-screen
+    senders within r_max (its limit is the screen-sender bound, test_ssdo_sender_area.py), and
+    its senders are GBuffer pixel centres; a wrong factor (pi, the patch area, a missing
+    cosine) would be off by 2x or more."""
     scene = make_corner()
     params = {"sample_count": 512, "pattern_size": 8, "blur_size": 8, "radius_rel": 1.0,
               "clamp_distance_rel": 1e-3}

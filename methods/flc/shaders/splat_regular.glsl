@@ -38,29 +38,28 @@ void store_vertex(uint o, vec3 a, vec3 e1, vec3 e2, vec2 bary, uint tri, uint vr
     divergent_vertices[o].normal = vec4(shading_normal(vec3(1.0 - bary.x - bary.y, bary)), 0.0);
 }
 
-// m^2 equal sub-patches (m = 1 unless the top tessellation level is not enough), 3 vertices each.
+// m^2 equal sub-patches (each small enough for tessellation level TESS_SUB_LEVEL), 3 vertices
+// each; only the sub-patches a light can reach (flc_patch_may_be_lit) are appended: the others
+// hold only VPLs of zero power, which add nothing (dropping them keeps the estimate unbiased).
+// One loop and one call site of the test (llvmpipe runs every GS invocation through the whole
+// compiled shader: a larger append path slows the regular pass of every triangle).
 void append_divergent(vec3 a, vec3 b, vec3 c, float area, uint tri, uint vr) {
-    int m = max(1, int(ceil(sqrt(area * TESS_FMAX_TOP / TESS_TARGET_AREA))));
-    uint need = uint(3 * m * m);
-    uint base = atomicAdd(cmd_reserved, need);
-    if (base + need > uint(DIVERGENT_CAPACITY)) return;  // cannot happen: capacity from the scene facts
-    atomicMax(cmd_count, base + need);
+    int m = max(1, int(ceil(sqrt(area * TESS_FMAX_SUB / TESS_TARGET_AREA))));
     vec3 e1 = b - a, e2 = c - a;
     float s = 1.0 / float(m);
-    uint o = base;
     for (int i = 0; i < m; ++i) {
         for (int j = 0; j < m - i; ++j) {
-            vec2 c00 = vec2(i, j) * s, c10 = vec2(i + 1, j) * s, c01 = vec2(i, j + 1) * s;
-            store_vertex(o, a, e1, e2, c00, tri, vr);
-            store_vertex(o + 1u, a, e1, e2, c10, tri, vr);
-            store_vertex(o + 2u, a, e1, e2, c01, tri, vr);
-            o += 3u;
-            if (j < m - i - 1) {
-                vec2 c11 = vec2(i + 1, j + 1) * s;
-                store_vertex(o, a, e1, e2, c10, tri, vr);
-                store_vertex(o + 1u, a, e1, e2, c11, tri, vr);
-                store_vertex(o + 2u, a, e1, e2, c01, tri, vr);
-                o += 3u;
+            for (int t = 0; t < 2; ++t) {   // the upright sub-triangle, then the inverted one
+                if (t == 1 && j >= m - i - 1) break;
+                vec2 p0 = vec2(i + t, j) * s, p1 = vec2(i + 1, j + t) * s, p2 = vec2(i, j + 1) * s;
+                if (!flc_patch_may_be_lit(a + p0.x * e1 + p0.y * e2, a + p1.x * e1 + p1.y * e2, a + p2.x * e1 + p2.y * e2))
+                    continue;
+                uint o = atomicAdd(cmd_reserved, 3u);
+                if (o + 3u > uint(DIVERGENT_CAPACITY)) return;  // cannot happen: capacity from the scene facts
+                atomicMax(cmd_count, o + 3u);
+                store_vertex(o, a, e1, e2, p0, tri, vr);
+                store_vertex(o + 1u, a, e1, e2, p1, tri, vr);
+                store_vertex(o + 2u, a, e1, e2, p2, tri, vr);
             }
         }
     }

@@ -53,6 +53,28 @@ void direct_irradiance_two_sided(vec3 p, vec3 n, vec3 ns, out vec3 front, out ve
     }
 }
 
+// Conservative: false only when no light can reach any point of the triangle abc (every light
+// a spot whose cone misses the triangle's bounding sphere: spot_falloff is 0 beyond the cutoff).
+// Point and directional lights reach every triangle not seen edge-on (surfaces are two-sided).
+bool flc_patch_may_be_lit(vec3 a, vec3 b, vec3 c) {
+    vec3 centre = (a + b + c) * (1.0 / 3.0);
+    float r = sqrt(max(dot(a - centre, a - centre), max(dot(b - centre, b - centre), dot(c - centre, c - centre))));
+    r = r * (1.0 + 1.0e-3) + 1.0e-6;
+    for (int i = 0; i < u_light_count; ++i) {
+        if (light_kind(i) != LIGHT_SPOT) return true;
+        Light L = lights[i];
+        vec3 v = centre - L.position_kind.xyz;
+        float dist = length(v);
+        if (dist <= r) return true;
+        // angle between the axis and the centre, minus the sphere's angular radius, against the cutoff
+        float cos_phi = dot(v, L.direction_cos_cutoff.xyz) / dist;
+        float phi = atan(sqrt(max(1.0 - cos_phi * cos_phi, 0.0)), cos_phi);
+        float alpha = asin(min(r / dist, 1.0));
+        if (phi - alpha < L.angles_layers.x + 1.0e-3) return true;
+    }
+    return false;
+}
+
 #if defined GEOMETRY_SHADER
 uniform mat4 u_view;           // re-centred world -> view space (the camera looks down -z)
 uniform vec2 u_proj_scale;     // P[0][0], P[1][1] of the symmetric perspective projection

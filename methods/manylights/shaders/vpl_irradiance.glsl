@@ -22,7 +22,20 @@ void main() {
         bary = vec3(1.0 - su, su * (1.0 - u2), su * u2);
     }
     vec3 y = bary.x * a + bary.y * b + bary.z * c;
-    vec3 n = normalize(cross(b - a, c - a));
+    vec3 cr = cross(b - a, c - a);
+    float cr_len = length(cr);
+    if (!(cr_len > 0.0)) {
+        // a sliver that is degenerate in float32 (its float64 area is tiny but not 0): no normal,
+        // so no emission (normalize would give NaN in every pixel it reaches); its share of the
+        // sum is its area, ~1e-6 of its neighbours'
+        vpls[t].position_area = vec4(y, 0.0);
+        vpls[t].normal = vec4(0.0);
+        vpls[t].shading_normal = vec4(0.0);
+        vpls[t].radiosity_front = vec4(0.0);
+        vpls[t].radiosity_back = vec4(0.0);
+        return;
+    }
+    vec3 n = cr / cr_len;
     // Mitsuba's shading frame: the vertex normals interpolated at y, normalised. The incident
     // cosine and the side a VPL emits on are taken against it; the geometric term against n.
     vec3 ns = bary.x * tri.n0.xyz + bary.y * tri.n1.xyz + bary.z * tri.n2.xyz;

@@ -1,7 +1,8 @@
 // Camera view reads the lightmap: each pixel maps its position through its triangle's chart
 // map to lightmap texel coordinates, interpolates the total gathered irradiance of the side it
-// shows bilinearly over the covered texels only (weights renormalised at chart borders), and
-// leaves L = rho / pi * E.
+// shows bilinearly over the covered texels of its own chart's box only (weights renormalised
+// at chart borders; boxes touch, so a tap past the box could read another chart), and leaves
+// L = rho / pi * E.
 #include "fullscreen.glsl"
 #include "pbgi_records.glsl"
 #include "lightmap_texel.glsl"
@@ -10,7 +11,6 @@ uniform sampler2D u_gbuffer_geo_normal;
 uniform sampler2D u_gbuffer_albedo;
 uniform sampler2D u_total_front;
 uniform sampler2D u_total_back;
-uniform int u_lightmap_size;
 
 #if defined FRAGMENT_SHADER
 layout(location = 0) out vec4 out_radiance;
@@ -23,13 +23,14 @@ void main() {
     bool front = dot(geo.xyz, chart_triangles[t].face_normal.xyz) >= 0.0;
     vec2 f = chart_texel_coords(t, p.xyz) - 0.5;
     ivec2 base = ivec2(floor(f));
+    ivec4 box = ivec4(chart_triangles[t].box);
     vec2 frac_ = f - vec2(base);
     vec3 sum = vec3(0.0);
     float weight = 0.0;
     for (int k = 0; k < 4; ++k) {
         ivec2 o = ivec2(k & 1, k >> 1);
         ivec2 q = base + o;
-        if (any(lessThan(q, ivec2(0))) || any(greaterThanEqual(q, ivec2(u_lightmap_size)))) continue;
+        if (any(lessThan(q, box.xy)) || any(greaterThanEqual(q, box.zw))) continue;
         if (!(lightmap_area(q) > 0.0)) continue;
         // floor: a point exactly on a covered texel's centre line still gets a weight
         float w = max((o.x == 1 ? frac_.x : 1.0 - frac_.x) * (o.y == 1 ? frac_.y : 1.0 - frac_.y), 1e-6);

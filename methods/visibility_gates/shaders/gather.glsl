@@ -16,6 +16,7 @@ uniform int u_vpl_count;
 uniform uint u_words;
 uniform uint u_word_first;  // this draw sums the VPLs of words [first, end): LOOP_CHUNK
 uniform uint u_word_end;
+uniform uint u_bit_mask;    // the VPLs of each word this draw sums (a word split over draws: LOOP_CHUNK)
 uniform float u_eps;
 
 #if defined FRAGMENT_SHADER
@@ -31,7 +32,7 @@ void main() {
     int d = int(geo_clusters[g].lo.w);
     vec3 sum = vec3(0.0);
     for (uint word = u_word_first; word < u_word_end; ++word) {
-        uint mask = light_masks[uint(g) * u_words + word];
+        uint mask = light_masks[uint(g) * u_words + word] & u_bit_mask;
         while (mask != 0u) {
             int b = findLSB(mask);
             mask &= mask - 1u;

@@ -9,14 +9,8 @@ uniform isampler3D u_cluster_grid;  // visibility cluster of every voxel
 uniform vec3 u_grid_origin;         // corner of voxel (0, 0, 0)
 uniform float u_grid_pitch;         // voxel edge
 uniform ivec3 u_grid_dims;
-uniform float u_gate_scale;         // gate size multiplier (1: the opening's ellipse, or the paper's disk)
+uniform float u_gate_scale;         // gate size multiplier (1: the opening's polygon, or the paper's disk)
 
-struct Gate {
-    vec4 centre_radius;  // xyz ellipse centre, w major semi-axis (before u_gate_scale): bounding radius
-    vec4 normal;         // xyz unit normal (along the skeleton), w minor semi-axis (before u_gate_scale)
-    vec4 major;          // xyz unit major axis, in the gate's plane
-};
-layout(std430, binding = BINDING_GATES) readonly buffer GateBlock { Gate gates[]; };
 // cluster C's neighbours: entries [adjacency_range[C].x, adjacency_range[C].y) of adjacency,
 // each (neighbour cluster D, gate index): one entry per gate, in both directions
 layout(std430, binding = BINDING_ADJ_RANGES) readonly buffer AdjRangeBlock { ivec2 adjacency_range[]; };
@@ -32,29 +26,45 @@ layout(std430, binding = BINDING_PIXEL_CLUSTER) buffer PixelClusterBlock { int p
 layout(std430, binding = BINDING_CLUSTER_COUNT) buffer ClusterCountBlock { uint geo_cluster_count; uint dispatch_args[3]; };
 layout(std430, binding = BINDING_LIGHT_MASKS) buffer LightMaskBlock { uint light_masks[]; };
 
+struct Gate {
+    vec4 centre_radius;  // xyz polygon centre, w radius of the ball holding the polygon (before u_gate_scale)
+    vec4 normal;         // xyz unit normal (along the skeleton), w number of edges (exact float)
+    vec4 axis_u;         // xyz unit axis u in the gate's plane (v = normal x u)
+    ivec4 sides;         // x: cluster on the -normal side, y: on the +normal side
+    vec4 edges[MAX_GATE_EDGES];  // half-planes m.(q.u, q.v) <= offset: xy = m, z = offset (before u_gate_scale)
+};
+layout(std430, binding = BINDING_GATES) readonly buffer GateBlock { Gate gates[]; };
+
 // Visibility cluster of a surface point: looked up one voxel off the surface along n (the side
 // the point is seen from / emits to), so a wall's two faces find the rooms on their two sides.
+// In a voxel a gate's plane cuts (the gate's own, or its wall's beside it; grid value
+// -(gate + 2)) the side of the gate's plane decides between the gate's two clusters.
 int cluster_at(vec3 p, vec3 n) {
-    vec3 q = (p + n * u_grid_pitch - u_grid_origin) / u_grid_pitch;
-    ivec3 v = clamp(ivec3(floor(q)), ivec3(0), u_grid_dims - 1);
-    return texelFetch(u_cluster_grid, v, 0).r;
+    vec3 q = p + n * u_grid_pitch;
+    ivec3 v = clamp(ivec3(floor((q - u_grid_origin) / u_grid_pitch)), ivec3(0), u_grid_dims - 1);
+    int c = texelFetch(u_cluster_grid, v, 0).r;
+    if (c < -1) {  // topology.cluster_grid
+        int g = -c - 2;
+        c = dot(q - gates[g].centre_radius.xyz, gates[g].normal.xyz) >= 0.0 ? gates[g].sides.y : gates[g].sides.x;
+    }
+    return c;
 }
 
-// Where the segment y -> x crosses gate g's ellipse: its parameter t in (0, 1), or -1.
+// Where the segment y -> x crosses gate g's polygon: its parameter t in (0, 1), or -1.
 float gate_crossing(int g, vec3 y, vec3 x) {
     vec3 c = gates[g].centre_radius.xyz;
-    float a = gates[g].centre_radius.w * u_gate_scale;
-    float b = gates[g].normal.w * u_gate_scale;
-    vec3 n = gates[g].normal.xyz, u = gates[g].major.xyz;
+    vec3 n = gates[g].normal.xyz, u = gates[g].axis_u.xyz;
     float sy = dot(y - c, n), sx = dot(x - c, n);
-    if (sy * sx >= 0.0) return -1.0;  // both on one side (or on the plane)
+    if (sy * sx >= 0.0 || u_gate_scale <= 0.0) return -1.0;  // both on one side (or on the plane); no gate
     float t = sy / (sy - sx);
     vec3 q = y + t * (x - y) - c;
-    float qu = dot(q, u);
-    vec3 qv = q - qu * u - dot(q, n) * n;
-    // (qu / a)^2 + (|qv| / b)^2 <= 1, written without a division; an empty ellipse lets nothing through
-    bool inside = b > 0.0 && qu * qu * b * b + dot(qv, qv) * a * a <= a * a * b * b;
-    return inside ? t : -1.0;
+    vec2 p = vec2(dot(q, u), dot(q, cross(n, u)));
+    int edges = int(gates[g].normal.w);
+    for (int i = 0; i < edges; ++i) {
+        vec4 e = gates[g].edges[i];
+        if (dot(e.xy, p) > e.z * u_gate_scale) return -1.0;
+    }
+    return t;
 }
 
 // Exact test of the fragment shader: does light from y (cluster c) reach x (cluster d != c)
@@ -80,8 +90,8 @@ bool reaches_through_gates(int c, int d, vec3 y, vec3 x) {
     return false;
 }
 
-// Conservative test of the light assignment: can the cone from y through gate g's disk meet
-// the sphere (s, rho)? The ellipse lies in the ball B(c, r) (r: its major semi-axis), whose tangent cone from y has
+// Conservative test of the light assignment: can the cone from y through gate g meet the sphere
+// (s, rho)? The polygon lies in the ball B(c, r), whose tangent cone from y has
 // half-angle asin(r / |c - y|); a sphere meets that cone iff its centre is within the cone
 // widened by asin(rho / |s - y|). The sphere must also reach the far side of the gate plane.
 bool cone_meets_sphere(int g, vec3 y, vec3 s, float rho) {
