@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
+import itertools
 import json
 import os
 import platform
@@ -883,28 +884,6 @@ class ReferenceProvider:
             self._refs[key] = ref
         return ref
 
-    def _apply(self, row: dict, refs: dict) -> None:
-        import time
-        t0 = time.perf_counter()
-        try:
-            self._apply_uncounted(row, refs)
-        finally:
-            self.seconds["metrics"] += time.perf_counter() - t0
-
-    def _apply_uncounted(self, row: dict, refs: dict) -> None:
-        from bench.evaluation import evaluate_row
-        for comp, ref in refs.items():
-            if ref is not None:
-                row[f"reference_key.{comp}"] = ref.key
-                row[f"reference_noise_floor.{comp}"] = ref.noise_floor_mse
-                row[f"reference_spp.{comp}"] = ref.spp
-        if all(r is None for r in refs.values()):
-            return
-        image_dir = self.run_dir / row["image_dir"]
-        images = {c: read_exr(image_dir / f"{c}.exr") for c in IMAGE_COMPONENTS}
-        row.update(evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()},
-                                memo_dir=cache_root() / "metrics"))
-
     def evaluate(self, row: dict, scene, view: str) -> None:
         """Fetch the view's first-pass references and record the row; its error columns come in finish()."""
         if not str(row.get("status", "")).startswith(("ok", "cached")):
@@ -916,21 +895,58 @@ class ReferenceProvider:
         self._rows.setdefault((scene.name, view), []).append((row, scene))
         row["_reference_seconds"] = time.perf_counter() - t0   # not the row's own time (see Runner._account_row)
 
+    PARALLEL_METRICS_MIN_ROWS = 24   # below this, worker start-up (~3 s) costs more than it saves
+    METRICS_CHUNK = 6                # rows per task: balances the workers, amortises the references sent
+
     def judge_all(self) -> None:
-        """Every recorded row's error columns against the final references of its view."""
-        rows = [(row, key) for key, entries in self._rows.items() for row, _ in entries]
+        """Every recorded row's error columns against the final references of its view, in
+        worker processes (one per core) when there are many rows: the metrics (HDR-FLIP above
+        all) are pure CPU work on files, and nothing is being timed any more."""
+        import time
+        t0 = time.perf_counter()
+        jobs = []   # (row, refs of its view)
+        for (scene_name, view), entries in self._rows.items():
+            refs = {c: self._refs.get((scene_name, view, c)) for c in self.COMPONENTS}
+            for row, _ in entries:
+                for comp, ref in refs.items():
+                    if ref is not None:
+                        row[f"reference_key.{comp}"] = ref.key
+                        row[f"reference_noise_floor.{comp}"] = ref.noise_floor_mse
+                        row[f"reference_spp.{comp}"] = ref.spp
+                if any(r is not None for r in refs.values()):
+                    jobs.append((row, (scene_name, view), refs))
         progress = None
-        if self.cfg.progress and rows:
+        if self.cfg.progress and jobs:
             from tqdm import tqdm
-            progress = tqdm(total=len(rows), unit="row", dynamic_ncols=True, file=sys.stderr, desc="error metrics")
+            progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr, desc="error metrics")
+        memo = cache_root() / "metrics"
+        workers = min(os.cpu_count() or 1, 8)
         try:
-            for row, (scene_name, view) in rows:
-                self._apply(row, {c: self._refs.get((scene_name, view, c)) for c in self.COMPONENTS})
-                if progress is not None:
-                    progress.update(1)
+            if workers < 2 or len(jobs) < self.PARALLEL_METRICS_MIN_ROWS:
+                for row, _, refs in jobs:
+                    row.update(judge_rows([str(self.run_dir / row["image_dir"])], _ref_means(refs), memo)[0])
+                    if progress is not None:
+                        progress.update(1)
+                return
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+            chunks = []   # rows of one view, at most METRICS_CHUNK per task
+            for _, group in itertools.groupby(jobs, key=lambda j: j[1]):
+                group = list(group)
+                for i in range(0, len(group), self.METRICS_CHUNK):
+                    chunks.append(group[i:i + self.METRICS_CHUNK])
+            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
+                futures = {pool.submit(judge_rows, [str(self.run_dir / r["image_dir"]) for r, _, _ in chunk],
+                                       _ref_means(chunk[0][2]), memo): chunk for chunk in chunks}
+                for fut in as_completed(futures):
+                    for (row, _, _), values in zip(futures[fut], fut.result()):
+                        row.update(values)
+                    if progress is not None:
+                        progress.update(len(futures[fut]))
         finally:
             if progress is not None:
                 progress.close()
+            self.seconds["metrics"] += time.perf_counter() - t0
 
     @staticmethod
     def _mse(image: np.ndarray, ref) -> float:
@@ -993,6 +1009,21 @@ class ReferenceProvider:
         self.judge_all()
         if self._curves:
             store.atomic_write_text(self.run_dir / "reference_curves.json", json.dumps(self._curves, default=_json_default))
+
+
+def _ref_means(refs: dict) -> dict:
+    return {c: (r.mean if r is not None else None) for c, r in refs.items()}
+
+
+def judge_rows(image_dirs: list, ref_means: dict, memo_dir) -> list[dict]:
+    """Error columns of rows (their image folders) against one view's references; runs in a
+    worker process of ReferenceProvider.judge_all, or in the runner's."""
+    from bench.evaluation import evaluate_row
+    out = []
+    for d in image_dirs:
+        images = {c: read_exr(Path(d) / f"{c}.exr") for c in IMAGE_COMPONENTS}
+        out.append(evaluate_row(images, ref_means, memo_dir=memo_dir))
+    return out
 
 
 def run(cfg: RunConfig, log=print):

@@ -207,15 +207,29 @@ def variant_labels(df: pd.DataFrame) -> pd.Series:
         parsed = {i: json.loads(p) if isinstance(p, str) and p else {} for i, p in group["params"].items()}
         keys = sorted({k for d in parsed.values() for k in d})
         base = {}
+        declared = _declared_defaults(str(method))
         for k in keys:
             counts = pd.Series([json.dumps(d.get(k), sort_keys=True) for d in parsed.values()]).value_counts()
             if len(counts) > 1:
-                base[k] = counts.index[0] if counts.iloc[0] > 1 else None
+                # a registered method's default names its default rung: a ladder's rungs all differ
+                if k in declared:
+                    base[k] = json.dumps(declared[k], sort_keys=True)
+                else:
+                    base[k] = counts.index[0] if counts.iloc[0] > 1 else None
         for i, d in parsed.items():
             named = [k for k in base if json.dumps(d.get(k), sort_keys=True) != base[k]]
             if named:
                 labels[i] = method + " " + ",".join(f"{k}={d.get(k)}" for k in named)
     return labels
+
+
+def _declared_defaults(method: str) -> dict:
+    """The method's declared parameter defaults, or {} when it is not registered (or fails to load)."""
+    from bench.registry import load_method
+    try:
+        return {k: p.default for k, p in load_method(method).params.items()}
+    except Exception:
+        return {}
 
 
 def ok_rows(df: pd.DataFrame) -> pd.DataFrame:

@@ -176,3 +176,12 @@ def test_bad_curves_file_names_itself(tmp_path):
     (tmp_path / "reference_curves.json").write_text("[1, 2]")
     with pytest.raises(ValueError, match="reference_curves.json: expected an object"):
         load_curves(tmp_path)
+
+
+def test_ladder_labels_name_the_default_rung_by_the_method():
+    # a ladder's rungs all differ: the registered defaults pick the bare label
+    rungs = [{"vpl_count": 16}, {"vpl_count": 64}, {"vpl_count": 256}, {"vpl_count": 1024}]
+    df = pd.DataFrame({"method": ["ir_unshadowed"] * 4,
+                       "params": [json.dumps(dict(p, clamp_distance_rel=1e-4)) for p in rungs]})
+    assert variant_labels(df).tolist() == ["ir_unshadowed vpl_count=16", "ir_unshadowed vpl_count=64",
+                                           "ir_unshadowed", "ir_unshadowed vpl_count=1024"]
