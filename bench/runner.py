@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import datetime as _dt
 import hashlib
-import itertools
 import json
 import os
 import platform
@@ -895,13 +894,10 @@ class ReferenceProvider:
         self._rows.setdefault((scene.name, view), []).append((row, scene))
         row["_reference_seconds"] = time.perf_counter() - t0   # not the row's own time (see Runner._account_row)
 
-    PARALLEL_METRICS_MIN_ROWS = 24   # below this, worker start-up (~3 s) costs more than it saves
-    METRICS_CHUNK = 6                # rows per task: balances the workers, amortises the references sent
-
     def judge_all(self) -> None:
-        """Every recorded row's error columns against the final references of its view, in
-        worker processes (one per core) when there are many rows: the metrics (HDR-FLIP above
-        all) are pure CPU work on files, and nothing is being timed any more."""
+        """Every recorded row's error columns against the final references of its view. (In one
+        process: a pool of one worker per core measured slower, 340 s against 240 s for the 336
+        rows of the default run, HDR-FLIP already keeping the cores busy.)"""
         import time
         t0 = time.perf_counter()
         jobs = []   # (row, refs of its view)
@@ -914,35 +910,17 @@ class ReferenceProvider:
                         row[f"reference_noise_floor.{comp}"] = ref.noise_floor_mse
                         row[f"reference_spp.{comp}"] = ref.spp
                 if any(r is not None for r in refs.values()):
-                    jobs.append((row, (scene_name, view), refs))
+                    jobs.append((row, refs))
         progress = None
         if self.cfg.progress and jobs:
             from tqdm import tqdm
             progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr, desc="error metrics")
         memo = cache_root() / "metrics"
-        workers = min(os.cpu_count() or 1, 8)
         try:
-            if workers < 2 or len(jobs) < self.PARALLEL_METRICS_MIN_ROWS:
-                for row, _, refs in jobs:
-                    row.update(judge_rows([str(self.run_dir / row["image_dir"])], _ref_means(refs), memo)[0])
-                    if progress is not None:
-                        progress.update(1)
-                return
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-            chunks = []   # rows of one view, at most METRICS_CHUNK per task
-            for _, group in itertools.groupby(jobs, key=lambda j: j[1]):
-                group = list(group)
-                for i in range(0, len(group), self.METRICS_CHUNK):
-                    chunks.append(group[i:i + self.METRICS_CHUNK])
-            with ProcessPoolExecutor(max_workers=workers, mp_context=mp.get_context("spawn")) as pool:
-                futures = {pool.submit(judge_rows, [str(self.run_dir / r["image_dir"]) for r, _, _ in chunk],
-                                       _ref_means(chunk[0][2]), memo): chunk for chunk in chunks}
-                for fut in as_completed(futures):
-                    for (row, _, _), values in zip(futures[fut], fut.result()):
-                        row.update(values)
-                    if progress is not None:
-                        progress.update(len(futures[fut]))
+            for row, refs in jobs:
+                row.update(judge_rows([str(self.run_dir / row["image_dir"])], _ref_means(refs), memo)[0])
+                if progress is not None:
+                    progress.update(1)
         finally:
             if progress is not None:
                 progress.close()
@@ -1016,8 +994,7 @@ def _ref_means(refs: dict) -> dict:
 
 
 def judge_rows(image_dirs: list, ref_means: dict, memo_dir) -> list[dict]:
-    """Error columns of rows (their image folders) against one view's references; runs in a
-    worker process of ReferenceProvider.judge_all, or in the runner's."""
+    """Error columns of rows (their image folders) against one view's references."""
     from bench.evaluation import evaluate_row
     out = []
     for d in image_dirs:

@@ -227,6 +227,12 @@ Stages: `regular`, `divergent`, `upscale_blur` (after the shared `gbuffer_shadow
 `D_near_m`, `lit_area_m2`, `S_bar_N_m2`, `D_N_m`, `levels`, `tiling_level`, `blur_radius`,
 `divergent_triangles`, `divergent_patch_vertices` (the buffer's size: the sub-patches a light
 can reach are drawn).
+
+Stress limit params:progressive_frames=4096: 4096 sub-frames averaged in one render by design (the
+converged estimate); minutes per frame on llvmpipe, over the stress suite's timeout.
+Stress limit params:dnear_factor=0.001: D_near of 1e-3 R_scene makes S_0 ~1e6 times smaller, so
+nearly every triangle is divergent and tessellated into millions of VPLs (the paper's D_near is
+0.2 R_scene); the row exceeds the stress suite's timeout.
 """
 from __future__ import annotations
 

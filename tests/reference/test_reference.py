@@ -9,7 +9,6 @@ import sys
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 
 pytest.importorskip("mitsuba")
@@ -499,20 +498,3 @@ def test_reference_is_scale_invariant():
         a = get_reference(base, "main", 32, 24, component, spp_cap=8).mean
         b = get_reference(small, "main", 32, 24, component, spp_cap=8).mean
         assert abs(b.mean() / a.mean() - 1.0) < 0.02, component
-
-
-def test_metrics_in_worker_processes_match_the_runner_process(gl_ctx, tmp_path, monkeypatch):
-    """judge_all's process pool (used from PARALLEL_METRICS_MIN_ROWS rows) gives the columns the
-    in-process path gives; the memo is bypassed so both compute."""
-    from bench.runner import ReferenceProvider, run
-    monkeypatch.setattr(ReferenceProvider, "REFERENCE_FIRST_PASS_SPP", 4)
-    results = []
-    for n, out in ((10 ** 6, "serial"), (1, "pool")):
-        monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / f"cache-{out}"))
-        monkeypatch.setattr(ReferenceProvider, "PARALLEL_METRICS_MIN_ROWS", n)
-        df, _ = run(_run_cfg(tmp_path, out=tmp_path / out, reference_spp_cap=4), log=lambda m: None)
-        results.append(df.set_index("method"))
-    serial, pool = results
-    cols = [c for c in serial.columns if c.startswith(("mse.", "flip_mean.", "relmse.", "mean_ratio."))]
-    assert len(cols) >= 12
-    pd.testing.assert_frame_equal(serial[cols], pool[cols])
