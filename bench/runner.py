@@ -918,7 +918,7 @@ class ReferenceProvider:
         memo = cache_root() / "metrics"
         try:
             for row, refs in jobs:
-                row.update(judge_rows([str(self.run_dir / row["image_dir"])], _ref_means(refs), memo)[0])
+                row.update(judge_row(self.run_dir / row["image_dir"], refs, memo))
                 if progress is not None:
                     progress.update(1)
         finally:
@@ -989,18 +989,11 @@ class ReferenceProvider:
             store.atomic_write_text(self.run_dir / "reference_curves.json", json.dumps(self._curves, default=_json_default))
 
 
-def _ref_means(refs: dict) -> dict:
-    return {c: (r.mean if r is not None else None) for c, r in refs.items()}
-
-
-def judge_rows(image_dirs: list, ref_means: dict, memo_dir) -> list[dict]:
-    """Error columns of rows (their image folders) against one view's references."""
+def judge_row(image_dir: Path, refs: dict, memo_dir) -> dict:
+    """Error columns of one row (its image folder) against its view's references."""
     from bench.evaluation import evaluate_row
-    out = []
-    for d in image_dirs:
-        images = {c: read_exr(Path(d) / f"{c}.exr") for c in IMAGE_COMPONENTS}
-        out.append(evaluate_row(images, ref_means, memo_dir=memo_dir))
-    return out
+    images = {c: read_exr(Path(image_dir) / f"{c}.exr") for c in IMAGE_COMPONENTS}
+    return evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()}, memo_dir=memo_dir)
 
 
 def run(cfg: RunConfig, log=print):
