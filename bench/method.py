@@ -4,6 +4,12 @@ A method never reads files, never times itself and never writes results: the run
 `prepare(gpu, scene, facts, params, view)` is untimed (allocations at the view's resolution,
 precomputation); `render(frame, prof)` is timed. It receives a `Frame` (the shared GL passes already built for this view) and a `StageProfiler`
 whose `stage(name)` context manager wraps each of its GPU stages in a timer query.
+
+Shared passes are read-only: the runner renders a view's GBuffer, shadow maps, direct light and
+RSM once and lends them to every method and rung of the view (their measured cost is added to
+each method's frame time). A method must never write their textures, buffers or texture
+parameters (no framebuffer, image binding or mipmap build on them). A method that has to
+declares `reuses_shared_passes = False` and gets passes of its own, rendered in each frame.
 """
 from __future__ import annotations
 
@@ -122,6 +128,10 @@ class MethodBase:
     # Quality ladder: 3-5 parameter-override dicts ordered fast -> accurate, one of them {} (the
     # defaults). `gibench run` renders every rung (time-vs-error curve); empty = defaults only.
     ladder: ClassVar[tuple] = ()
+    # True: the method only reads the shared passes, so the runner may lend it the view's passes,
+    # rendered and measured once (bench.harness.SharedViewPasses). False: a method that writes
+    # them gets passes of its own, rendered in each of its frames.
+    reuses_shared_passes: ClassVar[bool] = True
 
     def prepare(self, gpu, scene, facts, params: dict, view) -> None:
         self.params = params

@@ -1,9 +1,14 @@
 """The runner: scenes x views x methods x parameter sets -> result rows, images, references.
 
-For each row it builds the GPU scene, the shared passes the method needs, prepares the method
-(untimed), renders warm-up + K timed frames (bench.harness), writes linear EXRs of direct,
-indirect and combined, and appends one row to the run's results table (written atomically
-after every row). A content-addressed row cache means a row whose scene content, method
+Rows run grouped by scene and view. Each scene is uploaded once (GpuScene). Each view's shared
+passes (GBuffer, shadow maps, direct light, RSM) are built once with the union of the needs of
+the view's rows still to render, rendered and measured once (bench.harness.measure_shared_passes,
+the rows' calibrated timing), and lent to every method and rung of the view: a row's frames
+render only its method, and its frame time adds the measured medians of the shared stages it
+needs (recorded in the row's `extra.shared_*` and in the manifest's `shared_passes`). For each
+row the runner prepares the method (untimed), renders warm-up + K timed frames (bench.harness),
+writes linear EXRs of direct, indirect and combined, and appends one row to the run's results
+table (written atomically after every row). A content-addressed row cache means a row whose scene content, method
 version, parameters, resolution, frames, seed and machine are unchanged is not re-run
 (`force=True` re-runs); an interrupted run resumes from its results table.
 A method that fails (to load, to prepare, to render) becomes a `failed: <reason>` row and the
@@ -235,17 +240,39 @@ def peak_rss_mb() -> float:
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
-def render_outcome(ctx, gpu, cfg: RunConfig, cls, scene, facts, view: str, params: dict) -> dict:
+def timing_budget(cfg: RunConfig):
+    """The run's calibrated timing (bench.harness.TimingBudget), None for exactly `frames` frames."""
+    from bench.harness import TimingBudget
+    return None if cfg.timing_budget_s is None else TimingBudget(budget_s=float(cfg.timing_budget_s))
+
+
+def build_shared_passes(ctx, gpu, cfg: RunConfig, view: str, needs):
+    """One view's shared passes for `needs` (the union over the view's rows), built, rendered and
+    measured once with the rows' timing settings (SharedViewPasses, passed to render_outcome)."""
+    from bench.gl import SharedPasses
+    from bench.harness import measure_shared_passes
+    passes = SharedPasses(gpu, gpu.view(view, cfg.width, cfg.height), needs,
+                          shadow_resolution=effective_shadow_resolution(cfg))
+    try:
+        return measure_shared_passes(ctx, passes, warmup=cfg.warmup, frames=cfg.frames, timing=timing_budget(cfg))
+    except BaseException:
+        passes.release()
+        raise
+
+
+def render_outcome(ctx, gpu, cfg: RunConfig, cls, scene, facts, view: str, params: dict, shared=None) -> dict:
     """Render one row, writing nothing: {"status": "ok", "measured": row fields, "images": {...}},
     {"status": "skipped", "reason"} or {"status": "failed", "reason"}. Runs in the runner's process
-    or in a Dask worker (bench.distributed)."""
-    from bench.harness import TimingBudget, run_method
-    timing = None if cfg.timing_budget_s is None else TimingBudget(budget_s=float(cfg.timing_budget_s))
+    or in a Dask worker (bench.distributed). `shared`: the view's shared passes, rendered and
+    measured once (build_shared_passes); None renders them in each frame of the row."""
+    from bench.harness import run_method
+    timing = timing_budget(cfg)
     reset_peak_rss()
     try:
         result = run_method(ctx, cls, scene, view, cfg.width, cfg.height, params, seed=cfg.seed,
                             warmup=cfg.warmup, frames=cfg.frames, facts=facts,
-                            shadow_resolution=effective_shadow_resolution(cfg), gpu=gpu, timing=timing)
+                            shadow_resolution=effective_shadow_resolution(cfg), gpu=gpu, timing=timing,
+                            shared=shared)
     except SkipRow as exc:
         return {"status": "skipped", "reason": str(exc)}
     except Exception as exc:
@@ -290,6 +317,10 @@ class Runner:
         self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
         self._view_lit: dict = {}   # (scene, view) -> did any rendered row have light
         self._gpu = None            # (scene name, GpuScene): uploaded once per scene, shared by its rows
+        # the current view's shared passes: key -> SharedViewPasses (None: building failed, rows render their own)
+        self._shared: dict = {}
+        self._view_needs: dict = {}     # variant -> union of the needs of the current view's rows to render
+        self.shared_summary: dict = {}  # "scene/view" -> variant -> measurement summary (manifest)
         self._scene_refs: dict = {}  # scene name -> what a worker loads it from (corpus name / path / Scene)
         # wall seconds per phase of the run (the manifest records them)
         self.phases = {"setup": 0.0, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0, "rows_other": 0.0,
@@ -470,22 +501,31 @@ class Runner:
                     progress.close()
             jobs = []   # done
         try:
-            for scene_name, view, method, index, pset in jobs:
-                if progress is not None:
-                    progress.set_description(f"{scene_name}/{view}/{method}")
-                t_row = time.perf_counter()
-                row = self._run_row(ctx, scenes[scene_name], facts[scene_name], view, method, pset,
-                                    renderer, resumable, self.resolved.get((method, index)))
-                if references is not None and not str(row["status"]).startswith("failed"):
-                    references.evaluate(row, scenes[scene_name], view)
-                self._account_row(row, time.perf_counter() - t_row)
-                self.rows.append(row)
-                self._save()
-                if not str(row["status"]).startswith("failed") and isinstance(row.get("row_key"), str):
-                    self._state["done"].append(f"{row['row_key']}|{row['image_dir']}")
-                    self._write_state()
-                if progress is not None:
-                    progress.update(1)
+            for group in _view_groups(jobs):
+                # plan the view's rows first: its shared passes serve the rows that still render
+                plans = []
+                for scene_name, view, method, index, pset in group:
+                    t_plan = time.perf_counter()
+                    planned = self._plan_row(ctx, scenes[scene_name], view, method, pset, renderer, resumable,
+                                             self.resolved.get((method, index)))
+                    plans.append((planned, time.perf_counter() - t_plan))
+                self._open_view([planned for planned, _ in plans if not planned["done"]])
+                for (scene_name, view, method, index, pset), (planned, plan_s) in zip(group, plans):
+                    if progress is not None:
+                        progress.set_description(f"{scene_name}/{view}/{method}")
+                    t_row = time.perf_counter()
+                    row = self._run_row(ctx, scenes[scene_name], facts[scene_name], view, method, pset,
+                                        renderer, resumable, self.resolved.get((method, index)), planned=planned)
+                    if references is not None and not str(row["status"]).startswith("failed"):
+                        references.evaluate(row, scenes[scene_name], view)
+                    self._account_row(row, plan_s + time.perf_counter() - t_row)
+                    self.rows.append(row)
+                    self._save()
+                    if not str(row["status"]).startswith("failed") and isinstance(row.get("row_key"), str):
+                        self._state["done"].append(f"{row['row_key']}|{row['image_dir']}")
+                        self._write_state()
+                    if progress is not None:
+                        progress.update(1)
         finally:
             if progress is not None:
                 progress.close()
@@ -506,13 +546,81 @@ class Runner:
         write_summary(self.run_dir)
         return df
 
-    def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable, resolved=None) -> dict:
-        planned = self._plan_row(ctx, scene, view, method_name, pset, renderer, resumable, resolved)
+    def _run_row(self, ctx, scene, facts, view, method_name, pset, renderer, resumable, resolved=None,
+                 planned=None) -> dict:
+        if planned is None:
+            planned = self._plan_row(ctx, scene, view, method_name, pset, renderer, resumable, resolved)
         if planned["done"]:
             return planned["row"]
-        outcome = render_outcome(ctx, self._scene_gpu(ctx, scene, facts), self.cfg, planned["cls"], scene, facts,
-                                 view, planned["params"])
-        return self._finish_row(planned, outcome)
+        import time
+        gpu = self._scene_gpu(ctx, scene, facts)
+        t_shared = time.perf_counter()
+        shared = self._view_shared(ctx, gpu, view, planned["cls"])
+        shared_s = time.perf_counter() - t_shared
+        outcome = render_outcome(ctx, gpu, self.cfg, planned["cls"], scene, facts, view, planned["params"],
+                                 shared=shared)
+        row = self._finish_row(planned, outcome)
+        row["_shared_seconds"] = shared_s   # the view's, not the row's own time (see _account_row)
+        return row
+
+    # ------------------------------------------------------------------ shared passes, once per view
+    def _open_view(self, pending: list) -> None:
+        """A new view: release the previous view's shared passes and note, per variant, the union
+        of the needs of the rows about to render (built lazily, at the first of them)."""
+        from bench.gl.passes import expand_needs, shared_variant
+        self._release_shared()
+        self._view_needs = {}
+        for planned in pending:
+            cls = planned["cls"]
+            if not getattr(cls, "reuses_shared_passes", True):
+                continue
+            try:
+                needs = expand_needs(cls.needs)
+            except ValueError:  # the row fails with this message in run_method
+                continue
+            variant = shared_variant(needs)
+            self._view_needs[variant] = self._view_needs.get(variant, frozenset()) | needs
+
+    def _view_shared(self, ctx, gpu, view: str, cls):
+        """The current view's shared passes for `cls` (built and measured at the first row that
+        needs them), or None: a method that does not reuse them, or building them failed."""
+        import time
+        from bench.gl.passes import RSM_RESOLUTION, expand_needs, shared_variant
+        if not getattr(cls, "reuses_shared_passes", True):
+            return None
+        try:
+            variant = shared_variant(cls.needs)
+        except ValueError:
+            return None
+        needs = self._view_needs.get(variant)
+        if needs is None or not expand_needs(cls.needs) <= needs:
+            return None
+        cfg = self.cfg
+        key = (gpu.scene.name, gpu.seed, view, cfg.width, cfg.height, effective_shadow_resolution(cfg),
+               RSM_RESOLUTION, variant)   # every input of the shared passes (none is per frame)
+        if key not in self._shared:
+            t0 = time.perf_counter()
+            try:
+                self._shared[key] = build_shared_passes(ctx, gpu, cfg, view, needs)
+            except Exception as exc:  # the view's rows render passes of their own, as without reuse
+                ctx.error
+                reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+                self.log(f"gibench: {gpu.scene.name}/{view}: shared passes failed ({reason}); "
+                         f"each row renders its own")
+                self._shared[key] = None
+                return None
+            shared = self._shared[key]
+            seconds = time.perf_counter() - t0
+            self.phases["timing"] += shared.frames_total_ms / 1e3
+            self.phases["precompute"] += max(seconds - shared.frames_total_ms / 1e3, 0.0)
+            self.shared_summary.setdefault(f"{gpu.scene.name}/{view}", {})[variant] = shared.summary()
+        return self._shared[key]
+
+    def _release_shared(self) -> None:
+        for shared in self._shared.values():
+            if shared is not None:
+                shared.passes.release()
+        self._shared = {}
 
     def _run_distributed(self, ctx, scenes, jobs, renderer, resumable, references, progress) -> None:
         """Rows as Dask tasks (see bench.distributed); results kept in job order, references after."""
@@ -554,6 +662,10 @@ class Runner:
                     self.phases["precompute"] += row["prepare_ms"] / 1e3
                     self.phases["timing"] += row["frames_total_ms"] / 1e3
                     self.phases["scene_upload"] += float(outcome.get("upload_seconds", 0.0))
+                    # a worker's view passes, built and measured once per worker (as the serial path does per view)
+                    self.phases["timing"] += float(outcome.get("shared_seconds", 0.0))
+                    for view_key, variants in (outcome.get("shared_summary") or {}).items():
+                        self.shared_summary.setdefault(view_key, {}).update(variants)
                     row_s = float(outcome.get("seconds", method_s))
                     self.phases["rows_other"] += max(row_s - method_s, 0.0)
                     row["row_wall_ms"] = row_s * 1e3
@@ -667,6 +779,7 @@ class Runner:
         return gpu
 
     def _release_gpu(self) -> None:
+        self._release_shared()
         if self._gpu is not None:
             self._gpu[1].release()
             self._gpu = None
@@ -676,10 +789,11 @@ class Runner:
         harness's (read-back, EXR and cache writes, bookkeeping); reference fetches and metrics
         are phases of their own. `harness_overhead` = the harness's part / the row's time."""
         reference_s = float(row.pop("_reference_seconds", 0.0))
+        shared_s = float(row.pop("_shared_seconds", 0.0))   # the view's shared passes: timing + precompute
         if row.get("status") != "ok":
             return
         method_s = (float(row.get("prepare_ms", 0.0)) + float(row.get("frames_total_ms", 0.0))) / 1e3
-        row_s = seconds - reference_s
+        row_s = seconds - reference_s - shared_s
         self.phases["precompute"] += float(row.get("prepare_ms", 0.0)) / 1e3
         self.phases["timing"] += float(row.get("frames_total_ms", 0.0)) / 1e3
         self.phases["rows_other"] += max(row_s - method_s, 0.0)
@@ -694,6 +808,8 @@ class Runner:
         except (OSError, ValueError):
             return
         manifest["phases_s"] = {k: round(v, 3) for k, v in self.phases.items()}
+        if self.shared_summary:   # each view's shared passes, measured once, whose medians rows add
+            manifest["shared_passes"] = self.shared_summary
         manifest["peak_rss_mb"] = {f"{r['scene']}/{r['view']}/{r['method']}@{r.get('image_dir', '').rsplit('/', 1)[-1]}":
                                    round(float(r["peak_rss_mb"]), 1) for r in self.rows if "peak_rss_mb" in r}
         rendered = [r for r in self.rows if r.get("status") == "ok" and "row_wall_ms" in r]
@@ -765,6 +881,17 @@ class Runner:
         if total and c["ok"] == 0 and c["failed"] == 0:
             msg += " (nothing re-run: every row was unchanged)"
         return msg
+
+
+def _view_groups(jobs: list) -> list:
+    """Consecutive jobs of one (scene, view): the runner's unit of shared passes."""
+    groups: list = []
+    for job in jobs:
+        if groups and groups[-1][0][:2] == job[:2]:
+            groups[-1].append(job)
+        else:
+            groups.append([job])
+    return groups
 
 
 def _cache_entry_problem(d: Path) -> str | None:

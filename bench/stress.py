@@ -219,7 +219,9 @@ def error_of(images: dict, refs: dict | None) -> dict:
 
 
 # ---------------------------------------------------------------------------- documented limits
-_LIMIT_LINE = re.compile(r"^\s*[-*]?\s*Stress limit\s+(\S+?)\s*:\s*(.+?)\s*$", re.MULTILINE)
+# "Stress limit <pattern>: <reason>": the pattern may itself hold colons (params:NAME=VALUE), so
+# it ends at the last colon followed by white space.
+_LIMIT_LINE = re.compile(r"^\s*[-*]?\s*Stress limit\s+(\S+)\s*:\s+(.+?)\s*$", re.MULTILINE)
 
 
 def documented_limits(target) -> dict:
@@ -234,6 +236,10 @@ def documented_limits(target) -> dict:
             except Exception:  # a reference package that fails to import documents nothing
                 pass
     else:
+        # the manual is the method module's docstring; a class may also carry its own
+        import sys
+        module = sys.modules.get(getattr(target, "__module__", ""), None)
+        texts.append(getattr(module, "__doc__", "") or "")
         texts.append(getattr(target, "__doc__", "") or "")
         limits.update(dict(getattr(target, "stress_limits", {}) or {}))
     for text in texts:

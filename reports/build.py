@@ -459,7 +459,8 @@ def build_report(run_dir, out_dir=None) -> Path:
         parts += block
 
     parts.append("<h2 id='timing'>Per-stage timing</h2><p class='note'>Median GPU time per stage (timer queries), "
-                 "ms; shared passes first. GPU total is their sum; frame is the CPU wall time of the whole frame.</p>")
+                 "ms; shared passes first. GPU total is their sum; frame is the method's own CPU wall time per frame plus "
+                 "the medians of the shared passes it needs, measured once per view.</p>")
     for scene, view in views:
         rows = table[(table["scene"] == scene) & (table["view"] == view)]
         parts += [f"<h3>{esc(scene)} / {esc(view)}</h3>", stage_table(rows, stage_order(rows))]

@@ -22,6 +22,7 @@ COMPARED = ("scene", "view", "method", "params", "status", "row_key", "image_dir
 @pytest.fixture(autouse=True)
 def private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setenv("GIBENCH_TIMING_LOCK", str(tmp_path / "timing.lock"))   # not shared with other runs
 
 
 def config(tmp_path, out, **kw):
@@ -37,6 +38,9 @@ def test_two_workers_give_the_serial_rows_and_images(tmp_path):
     assert list(serial["status"]) == ["ok"] * 6
     pd.testing.assert_frame_equal(serial[list(COMPARED)].reset_index(drop=True), dist[list(COMPARED)].reset_index(drop=True))
     assert dist["worker"].nunique() >= 1 and dist["frame_ms"].notna().all()
+    # the same fields: workers lend each view's shared passes to its rows as the serial runner does
+    assert sorted(set(dist.columns) - {"worker"}) == sorted(serial.columns)
+    assert dist["extra.shared_passes_reused"].astype(bool).tolist() == serial["extra.shared_passes_reused"].astype(bool).tolist()
     for a, b in zip(serial.to_dict("records"), dist.to_dict("records")):
         for comp in ("direct", "indirect", "combined"):
             assert np.array_equal(read_exr(rs.run_dir / a["image_dir"] / f"{comp}.exr"),
@@ -48,7 +52,6 @@ def test_two_workers_give_the_serial_rows_and_images(tmp_path):
 
 
 def test_a_killed_worker_loses_nothing(tmp_path):
-    import dask
     from distributed import get_client
 
     killed = []
@@ -69,13 +72,79 @@ def test_a_killed_worker_loses_nothing(tmp_path):
 
     cfg = config(tmp_path, "dist", workers=2, methods=["direct", "manylights", "ssdo", "flc"])
     thread = threading.Thread(target=kill_one_worker, daemon=True)
-    # a dead worker's timing-semaphore lease expires quickly here, so the retried task is not held up
-    with dask.config.set({"distributed.scheduler.locks.lease-timeout": "2s",
-                          "distributed.scheduler.locks.lease-validation-interval": "0.5s"}):
-        thread.start()
-        df, runner = run(cfg, log=lambda m: None)
+    # the dead worker's timing lock (a flock) is released by the kernel: the retried task is not held up
+    thread.start()
+    df, runner = run(cfg, log=lambda m: None)
     thread.join(timeout=5)
     assert killed, "no worker was killed: the test did not exercise a failure"
     assert len(df) == 8 and set(df["status"]) <= {"ok"}, df[["method", "status"]]
     for rec in df.to_dict("records"):
         assert (runner.run_dir / rec["image_dir"] / "combined.exr").is_file()
+
+
+def test_timed_rows_never_overlap_even_when_a_row_holds_the_gil(tmp_path):
+    """A GL call can hold the GIL for minutes (llvmpipe, 10M triangles). A Dask Semaphore's lease,
+    refreshed by the starved event loop, then expired and a second row rendered beside the first;
+    the host's flock does not depend on the worker answering."""
+    import dask
+
+    from bench import distributed as dist
+
+    def hold_gil_under_the_lock(n):
+        import os
+        import time as _time
+        from bench.distributed import timing_lock
+        with timing_lock():
+            t0 = _time.time()
+            sum(range(n))   # one C call: the GIL is held throughout
+            return t0, _time.time(), os.getpid()
+
+    # short Dask lease timeouts: what expired the Semaphore's leases, the flock must not care
+    with dask.config.set({"distributed.scheduler.locks.lease-timeout": "0.5s",
+                          "distributed.scheduler.locks.lease-validation-interval": "0.1s"}):
+        client, cluster = dist.open_client(workers=2)
+        try:
+            futures = [client.submit(hold_gil_under_the_lock, 30_000_000 + i, pure=False) for i in range(4)]
+            windows = sorted(client.gather(futures))
+        finally:
+            dist.close_client(client, cluster)
+    assert len({pid for _, _, pid in windows}) == 2, "the tasks did not run on both workers"
+    for (s0, e0, _), (s1, e1, _) in zip(windows, windows[1:]):
+        assert s1 >= e0, f"two timed sections overlapped: {windows}"
+
+
+def test_timing_lock_is_exclusive_and_freed_when_its_holder_is_killed(tmp_path):
+    import fcntl
+    import subprocess
+    import sys
+
+    from bench.distributed import timing_lock, timing_lock_path
+
+    path = timing_lock_path()
+    assert path == tmp_path / "timing.lock"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom bench.distributed import timing_lock\n"
+                               "with timing_lock():\n    print('held', flush=True)\n    time.sleep(120)\n"],
+                              stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        finally:
+            os.close(fd)
+    finally:
+        holder.kill()
+        holder.wait(timeout=30)
+    got = threading.Event()
+
+    def take():
+        with timing_lock():
+            got.set()
+
+    thread = threading.Thread(target=take, daemon=True)
+    thread.start()
+    assert got.wait(timeout=20), "the lock of a killed holder was not released"
+    with pytest.raises(ValueError, match="timing lock"):
+        with timing_lock(tmp_path / "no_such_folder" / "timing.lock"):
+            pass

@@ -4,6 +4,8 @@ from __future__ import annotations
 import json
 from typing import ClassVar
 
+import sys
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -158,6 +160,24 @@ def test_documented_limits_from_the_manual():
     assert stress.match_limit(limits, "scale=1e-04").startswith("an absolute epsilon")
     assert stress.match_limit(limits, "translate=1e+05R") == "float32 positions"
     assert stress.match_limit(limits, "scale=1e+04") is None
+
+
+def test_documented_limits_of_the_shipped_manuals():
+    """The manuals are the method modules' docstrings and their patterns hold colons
+    (params:NAME=VALUE): every "Stress limit" line of every method reaches the suite."""
+    from bench.registry import list_methods, load_method
+    for name in list_methods():
+        cls = load_method(name)
+        manual = sys.modules[cls.__module__].__doc__ or ""
+        lines = [ln.strip() for ln in manual.splitlines() if ln.strip().startswith("Stress limit")]
+        limits = stress.documented_limits(cls)
+        for line in lines:
+            pattern = line[len("Stress limit"):].strip().split(": ")[0].rstrip(":")
+            assert pattern in limits, (name, line, sorted(limits))
+            assert stress.match_limit(limits, pattern) is not None
+    flc = stress.documented_limits(load_method("flc"))
+    assert stress.match_limit(flc, "params:progressive_frames=4096")
+    assert stress.match_limit(flc, "params:progressive_frames=1") is None
 
 
 # ---------------------------------------------------------------------------- the suite on fake methods (GL)

@@ -1,6 +1,15 @@
 """Shared GL passes, built only when a method needs them: GBuffer, shadow maps, direct lighting,
-reflective shadow map. `SharedPasses.render(prof)` runs them each frame under the shared stage
-names `gbuffer_shadow`, `direct_light` and `rsm`.
+reflective shadow map. `SharedPasses.render(prof)` runs them under the shared stage names
+`gbuffer_shadow`, `direct_light` and `rsm`.
+
+Reuse: the passes depend on the view, the scene (its GpuScene, hence its seed) and the shadow
+and RSM resolutions only: never on a frame index, a method or its parameters (render() takes
+no frame). The runner therefore renders them once per view and lends them to every method and
+rung of the view (bench.harness.SharedViewPasses); methods only read them. `restore_state()`
+puts the GL state where `render()` would leave it, so a method's frame starts as if the passes
+had just been rendered. One exception to "a superset serves everyone": the direct pass is
+shadowed exactly when the shadow maps are built, so a method that needs `direct` without
+`shadow_map` gets passes of its own variant (`shared_variant`).
 
 Image convention: textures are GL's (row 0 at the bottom); `read_rgb` returns numpy arrays
 with row 0 at the top, like EXR files and Mitsuba.
@@ -36,6 +45,7 @@ from .shaders import GLOBAL_DEFINES, has_member, load_program, set_uniforms
 SHADER_DIR = Path(__file__).parent / "shaders"
 SHARED_STAGES = ("gbuffer_shadow", "direct_light", "rsm")
 KNOWN_NEEDS = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
+RSM_RESOLUTION = 128   # the shared RSM's tile side
 
 # Cube faces in the order shadow.glsl selects them: +X, -X, +Y, -Y, +Z, -Z (axis, up).
 _CUBE_FACES = (((1, 0, 0), (0, 1, 0)), ((-1, 0, 0), (0, 1, 0)), ((0, 1, 0), (0, 0, 1)),
@@ -311,11 +321,31 @@ def expand_needs(needs) -> frozenset:
     return needs
 
 
+def stages_for_needs(needs) -> tuple:
+    """The shared stages (in execution order) that SharedPasses(needs).render() times."""
+    needs = expand_needs(needs)
+    out = []
+    if needs & {"gbuffer", "shadow_map"}:
+        out.append("gbuffer_shadow")
+    if "direct" in needs:
+        out.append("direct_light")
+    if "rsm" in needs:
+        out.append("rsm")
+    return tuple(out)
+
+
+def shared_variant(needs) -> str:
+    """Which shared passes can serve `needs`: the direct pass is shadowed exactly when the shadow
+    maps are built, so needing `direct` without `shadow_map` takes passes of their own."""
+    needs = expand_needs(needs)
+    return "unshadowed_direct" if "direct" in needs and "shadow_map" not in needs else "standard"
+
+
 class SharedPasses:
     """The shared passes one method needs for one view; only those are built and rendered."""
 
     def __init__(self, gpu: GpuScene, view: View, needs, shadow_resolution: int = 1024,
-                 rsm_resolution: int = 128):
+                 rsm_resolution: int = RSM_RESOLUTION):
         self.gpu, self.view = gpu, view
         self.needs = expand_needs(needs)
         self.gbuffer = GBuffer(gpu, view.width, view.height) if "gbuffer" in self.needs else None
@@ -326,14 +356,47 @@ class SharedPasses:
 
     @property
     def stages(self) -> tuple:
-        out = []
-        if self.gbuffer is not None or self.shadows is not None:
-            out.append("gbuffer_shadow")
-        if self.direct is not None:
-            out.append("direct_light")
-        if self.rsm is not None:
-            out.append("rsm")
-        return tuple(out)
+        return stages_for_needs(self.needs)
+
+    def serves(self, needs) -> str | None:
+        """None when these passes give a method with `needs` exactly what SharedPasses(needs) would
+        (every pass it needs, the direct pass shadowed as its needs say); else why not (one phrase)."""
+        needs = expand_needs(needs)
+        missing = sorted(needs - self.needs - {"precompute"})
+        if missing:
+            return f"lack the shared pass(es) {missing}"
+        if shared_variant(needs) != shared_variant(self.needs) and "direct" in needs:
+            return "have a direct pass shadowed differently"
+        return None
+
+    def restore_state(self, needs=None) -> None:
+        """Leave the GL state as SharedPasses(needs).render() leaves it, drawing nothing: the bound
+        framebuffer (and with it moderngl's per-framebuffer viewport and scissor), the enable flags,
+        the scene and shadow-layer storage buffers and the direct pass's texture units. A method
+        reading these passes without rendering them then starts its frame as it would after them."""
+        needs = self.needs if needs is None else expand_needs(needs)
+        why = self.serves(needs)
+        if why is not None:
+            raise ValueError(f"shared passes {why}")
+        last = None
+        if "gbuffer" in needs:
+            last = self.gbuffer.fbo
+        if "shadow_map" in needs:
+            last = self.shadows.fbo
+        if "direct" in needs:
+            last = self.direct.fbo
+            unit = self.gbuffer.bind(self.direct.program)
+            if self.direct.shadows is not None:
+                self.direct.shadows.bind(self.direct.program, unit)
+        if "rsm" in needs:
+            last = self.rsm.fbo
+        if last is None:
+            return  # render() would have drawn nothing
+        self.gpu.bind_scene_buffers()
+        last.use()
+        # every pass starts with enable_only(DEPTH_TEST); the direct pass then turns it off, the RSM on
+        depth = "rsm" in needs or "direct" not in needs
+        self.gpu.ctx.enable_only(moderngl.DEPTH_TEST if depth else moderngl.NOTHING)
 
     def render(self, prof: StageProfiler) -> None:
         if self.gbuffer is not None or self.shadows is not None:
@@ -418,4 +481,4 @@ def render_direct(ctx: moderngl.Context, scene: Scene, camera_name: str, width: 
 
 __all__ = ["GBuffer", "ShadowMaps", "DirectPass", "ReflectiveShadowMap", "SharedPasses", "Frame",
            "render_gbuffer", "render_direct", "read_rgb", "read_rgba", "SHARED_STAGES", "frame_random",
-           "create_context"]
+           "create_context", "expand_needs", "stages_for_needs", "shared_variant"]

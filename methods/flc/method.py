@@ -20,7 +20,18 @@ balls and the area use the face. A VPL lit on one side emits on that side.
 2. Alg. 1: S_0 = 4 pi D_near^2 / N_avg (eq. 1), S_k = S_0 mu^k (eq. 17), S_bar_k =
    1 / sum_{j<=k} 1/S_j; a triangle goes to the first level k with u < A / S_bar_k, else it is
    discarded. Triangles with A > S_bar_N are divergent.
-3. Regular pass (stage `regular`): one draw of the whole scene. Its geometry shader classifies
+3. Regular pass (stage `regular`): first the GBuffer's receivers are deinterleaved into the
+   tiled layout (`deinterleave.glsl`: the split G-buffer of interleaved sampling, one texel per
+   splat fragment holding position and an octahedral 2 x 16-bit normal: a splat fragment reads
+   one texel beside its neighbours' instead of two 2^L pixels apart). Then, with
+   `regular_selection = compute` (default), a compute pass (`select_regular.glsl`) makes the
+   geometry shader's cheap decision for every triangle (divergent, or kept by Alg. 1's level
+   draw with the same key and hash) and compacts the kept ones in scene order (an ordered scan,
+   not an atomic append: same blending order, so the image is bit for bit the single draw's;
+   tested); the draw (`render_indirect`, no read-back) carries only those, a few thousand of
+   conference's 331k triangles. Measured at 320 x 180 (one run, machine under load): the
+   `regular` stage 180 -> 105 ms on conference, 67 -> 52 ms on sponza; the paper's one draw of
+   the whole scene is `regular_selection = single_draw`. Then one draw: its geometry shader classifies
    each triangle, appends divergent ones to a storage buffer and atomically grows an indirect
    draw command, and turns each kept regular triangle into one VPL, uniformly jittered over the
    triangle (`jitter`; at the centroid when off), with the shadowed direct radiosity rho E of
@@ -78,6 +89,19 @@ Corrections to the paper (details and derivations in `levels.py`):
   `analysis.count_vpls_reaching` measures the count on a scene (4x N_avg: 3.7-4.1x the VPLs on
   cornell_spot; the printed eq. 18 with the former defaults: 0.8x).
 
+Near field (`near_field = vpl_disc`, default): eq. 5 clamps d_i = max(eps, |x - y|) with eps a
+user parameter "to avoid singularities"; we take eps_k = max(eps_rel R_scene, sqrt(S_k / pi))
+for a level-k VPL, the radius of the disc of area S_k it stands for (its weight in eq. 10). A
+point VPL then never lights a receiver more than its whole hemisphere of emitters could
+(H S_k <= 1.5 rho_x B / pi for radiosity B: `test_near_field_clamp_removes_the_single_vpl_spikes`).
+It only acts on level 0 (a level-k VPL has f^k = 0 below D_{k-1}, and sqrt(S_k / pi) =
+2 D_near mu^(k/2) / sqrt(N_avg) < D_{k-1} for N_avg > 4 mu) and vanishes as N_avg grows
+(consistent); its bias is the missing light of a level-0 VPL closer than sqrt(S_0 / pi) to a
+receiver. Why: with the fixed eps (1e-4 R_scene, `near_field = paper_eps`) single level-0 VPLs of
+1.7 m^2 on sponza lit pixels a few cm away up to 1e5 times their radiosity: relmse.indirect
+against Mitsuba 2.09 (4 seeds, 320 x 180; `direct`: 0.76), 0.79 with the clamp; on the
+procedural scenes S_0 is small and the image means move by under 1% (the 8-seed table below).
+
 Documented rules (a user setting always wins):
 - D_near (`dnear_rule = lit`, default): D_near = min(dnear_factor R_scene, sqrt(A_lit / (4 pi))),
   A_lit the area a light's emission reaches, occlusion ignored (`levels.lit_area`: all of the
@@ -124,78 +148,66 @@ Documented rules (a user setting always wins):
   half the N_avg. The blur radius follows (`blur_radius = -1`: 2^L - 1, every tile phase
   weighing the same).
 
-Measured at the defaults, one frame (issue 10; shared 2-core llvmpipe machine under heavy load,
-so times are ratios within one run). Image mean of FLC's indirect over jittered `manylights`
-(flc lobe, 16 jitter frames), 8 seeds (0..7), 128 x 96, relative spread std/mean across seeds:
-cornell_spot 1.013 (3.4%), hidden_bounce 1.051 (6.9%), rooms/main 1.035 (6.4%), sphere_inside
-0.998 (3.7%) (`analysis.single_frame_study`, measured with L = 0 before the tiling rule moved to
-64 x 48 px tiles; tiling does not change the expectation). big_floor was the exception before
-the D_near rule: its 80 m floor inflates R_scene, so S_0 = 3.2 m^2 and the floor's lit spot held
-0 to 3 VPLs a frame (mean ratio 1.04, spread 110%, per-seed 0.0 to 3.2; `dnear_rule=scene` now);
-with the rule (D_near 0.53 m, S_0 0.027 m^2, N = 0), 128 x 96, 8 seeds, against jittered
-`manylights` on `analysis.refined_scene(scene, 0.5)`: 0.987 (6.6%), relMSE (squared error over
-squared reference, per frame) 0.006; per-pixel relMSE (`bench.metrics.relmse`, the report's)
-with n_avg 64 / 128 / 256 / 512 / 1024, 4 seeds: 0.0046 0.0043 0.0035 0.0036 0.0033 (flat
-from 256 on within the 4-seed noise and the reference's own: 16 jitter frames); FLC's stages
-34, 106, 130, 257, 475 ms (load average 14: about 0.45 ms per unit of N_avg).
-relMSE of `indirect` against the Mitsuba unshadowed reference (`gibench sweep`, mean over seeds
-0..7, 128 x 96), flc at n_avg 64 / 128 / 256 / 512 / 1024 against `direct`:
-cornell_spot 0.070 0.062 0.060 0.064 0.058 (direct 0.876), hidden_bounce 0.104 0.094 0.051
-0.051 0.047 (0.957), big_floor 0.546 0.344 0.141 0.092 0.075 (0.290), rooms/main 0.029 0.022
-0.019 11.06 2.78 (0.636), rooms/far 0.109 0.111 0.113 0.119 0.113 (0.969), sphere_inside 0.007
-0.007 0.006 0.005 0.005 (0.990) (big_floor's row with the former D_near = 0.2 R_scene). A known
-failure at the defaults: single-pixel spikes of the 1/d^2 term
-(eps_rel 1e-4) when a jittered VPL lands next to a visible receiver (rooms/main seed 7 at n_avg
-512 and 1024: relMSE 88 and 22, the other seeds 0.01 to 0.05); the jittered `manylights` has
-the same singularity. Where the error stops falling with N_avg it is FLC's emission lobe (eq. 6,
-<n_t, w> 3/(2 pi) instead of Lambert's 1/pi) and the missing indirect shadows, not noise: against
-jittered `manylights` with the flc lobe the error falls with N_avg (test_flc_defaults.py).
-Frame time grows with N_avg once the splat dominates (median over the seeds: sphere_inside 180,
-203, 331, 656, 1144 ms, about 1.0 ms per unit of N_avg; cornell_spot 74, 90, 152, 236, 352 ms,
-0.29 ms per unit; direct 137 and 39 ms).
-At 320 x 180, the defaults (with the D_near rule and the lit-only divergent pass), one frame,
-8 seeds, against jittered `manylights` (flc lobe, 4 jitter frames; big_floor's on
-`analysis.refined_scene(scene, 0.5)`): image mean ratio (spread), per-pixel relMSE mean over
-seeds (`bench.metrics.relmse`; in brackets what a black image, i.e. `direct`, scores):
-big_floor 0.996 (6.5%) 0.0056 [0.136], cornell_spot 1.020 (3.3%) 0.0022 [0.815], rooms/main
-1.031 (6.6%) 0.014 [0.622], rooms/far 1.022 (5.7%) 0.0034 [0.576], sphere_inside 0.998 (3.7%)
-0.0013 [0.990], hidden_bounce 1.064 (6.9%) 0.0095 [0.941], lit_wall_corner 1.019 (5.3%) 1.67
-[0.335]. lit_wall_corner's per-pixel figure is the 1/d^2 singularity at the corner in both
-images (wall VPLs a few mm from floor receivers; the reference has only 4 jittered VPLs per
-triangle): against the Mitsuba reference (`gibench run`, 128 x 96, seed 0) its
-relmse.indirect is 0.019, `direct`'s 0.48.
-Against the Mitsuba unshadowed reference (`gibench run --defaults-only`, 128 x 96, seeds 0 and
-1), relmse.indirect of flc / direct: big_floor 0.056 0.057 / 0.290 (0.344 with the former
-D_near), cornell_spot 0.059 0.062 / 0.876, hidden_bounce 0.094 0.038 / 0.957, rooms/main
-1.256 0.243 / 0.636, rooms/far 0.114 0.106 / 0.969, sphere_inside 0.008 0.003 / 0.990,
-lit_wall_corner 0.019 0.013 / 0.482, sibenik 0.252 0.086 / 0.977, conference 0.189 0.179 /
-0.899, sponza 9.04 2.41 / 0.751. Two known failures, both spikes of a few pixels and unchanged
-by the D_near rule and the lit-only divergent pass (the same images and figures with the code
-before them): rooms/main seed 0 (97% of its error in 10 pixels next to a VPL) and sponza
-(run_method seeds 0..3: 9.7, 2.0, 3.7, 30.0; 77 to 89% of the error in 10 pixels in seeds 0
-and 3; per-seed image mean over Mitsuba's 0.96 to 1.40): level-0 VPLs stand for S_0 = 1.7 m^2
-there and light receivers within a metre of them, where a point VPL is a poor stand-in for
-its patch; eps_rel 1e-2 (0.2 m) barely changes it (9.0, 1.9, 3.6, 13.7).
-Frame time at 320 x 180 over `direct`'s (`gibench run --defaults-only --force --no-reference`,
-3 frames, machine at load 1 to 3): highpoly_1m 1.28, sponza 1.59, conference 1.84 (FLC's own
-stages 0.39, 0.57, 0.72 of direct's frame: 271, 84, 168 ms). The same run with the code before
-the D_near rule and the lit-only divergent pass, minutes later: FLC's own stages 262, 84,
-169 ms, the same; its ratios (1.38, 1.26, 1.19) differ through `direct`'s frame (748, 350,
-484 ms there against 695, 148, 234 ms), so the 1.5x bound on sponza and conference turns on
-the machine's load, not on this code. `dss` / `flc` (an earlier run, 2 frames, load 14):
-highpoly_1m 35.8, sponza 5.8, conference 9.1.
-Commands:
+Measured at the defaults, one frame (issue 10; a shared 2-core llvmpipe machine under load 8 to
+11, so times are ratios within one run). `python -m methods.flc.study` prints every figure below
+(its docstring has the commands). 8 seeds (0..7); against jittered `manylights` (flc lobe, 4
+jitter frames at 320 x 180, 16 at 128 x 96; big_floor's on `analysis.refined_scene(scene, 0.5)`):
+image-mean ratio (relative spread std/mean across seeds), per-pixel relMSE mean (what a black
+image scores); against the Mitsuba unshadowed reference: relmse.indirect mean / max over seeds
+(`direct`'s):
 
-    for s in 0 1 2 3 4 5 6 7; do
-      gibench sweep --scenes cornell_spot,hidden_bounce,big_floor,rooms,sphere_inside \\
-          --methods direct,flc --res 128x96 --frames 2 --seed $s --out runs/flc_128_seed$s
-    done
-    gibench run --scenes highpoly_1m,sponza,conference --methods direct,flc,dss --res 320x180 \\
-        --frames 2 --seed 0 --no-reference --defaults-only --force --out runs/flc_320_time
-    python -c "from bench.gl.context import create_context; from bench.corpus import load_scene; \\
-        from methods.flc.analysis import single_frame_study as s, refined_scene as r; \\
-        sc = load_scene('big_floor'); \\
-        print(s(create_context(), sc, 'main', 320, 180, jitter_frames=4, reference_scene=r(sc, 0.5)))"
+    320 x 180         ml ratio (spread)  relMSE vs ml (black)  Mitsuba mean / max (direct)
+    cornell_spot      1.020 (3.3%)       0.0022 (0.815)        0.052 / 0.069 (0.843)
+    hidden_bounce     1.064 (6.9%)       0.0095 (0.941)        0.081 / 0.141 (0.953)
+    big_floor         0.996 (6.5%)       0.0056 (0.136)        0.047 / 0.051 (0.196)
+    rooms/main        1.030 (6.6%)       0.0086 (0.622)        0.017 / 0.028 (0.615)
+    rooms/far         1.022 (5.7%)       0.0034 (0.576)        0.058 / 0.080 (0.586)
+    sphere_inside     0.998 (3.7%)       0.0013 (0.990)        0.008 / 0.010 (0.990)
+    lit_wall_corner   1.012 (5.1%)       0.265  (0.335)        0.022 / 0.035 (0.506)
+    cornell_box       1.072 (2.5%)       0.297  (0.387)        0.029 / 0.032 (0.755)
+    sibenik           -                  -                     0.050 / 0.073 (0.974)
+    conference        -                  -                     0.105 / 0.168 (0.904)
+    sponza            -                  -                     0.826 / 1.223 (0.762)
+    128 x 96: cornell_spot 1.012 (3.4%), hidden_bounce 1.051 (6.9%), big_floor 0.987 (6.6%),
+    rooms/main 1.033 (6.6%), rooms/far 1.020 (5.6%), sphere_inside 0.998 (3.7%), lit_wall_corner
+    1.008 (5.1%), cornell_box 1.007 (2.5%); Mitsuba relmse.indirect below `direct`'s on each
+    (0.007 .. 0.094 against 0.227 .. 0.990).
+
+lit_wall_corner's and cornell_box's relMSE against `manylights` is the reference's own 1/d^2
+singularity (4 jittered VPLs per triangle, no near-field bound) at the corners. On the real
+scenes `manylights` sums 10^5 triangles at every pixel: at 128 x 72 with one jitter frame,
+sibenik 0.959 (5.6%); sponza and conference 1.24 and 1.31 (1.34 and 1.39 with
+`near_field=paper_eps`, which is unbiased for it: 64 x 36, 2 reference seeds), so the
+one-frame `manylights` image itself is the low outlier there (a heavy-tailed 1/d^2 sum whose
+typical frame lies under its mean). Through Mitsuba instead (FLC / Mitsuba over the flc-lobe
+sum / the Lambertian sum, `manylights` with both lobes and the same VPLs: 0.94 on sponza, 1.10
+on conference): sponza 1.078 / 0.94 = 1.15, conference 1.08 / 1.10 = 0.98 (4 seeds, 320 x 180;
+per-seed spread 16% and 12%).
+Known failure, sponza: relmse.indirect 0.83 against `direct`'s 0.76 (4 seeds at n_avg 256:
+0.50, at 512: 0.47; 2.09 with `near_field=paper_eps`). Two causes, measured: the flc lobe (the
+error map's structure is the lobe's: arch undersides above the sunlit floor, which the lobe
+lights 1.5x Lambert along the normal, too bright; pillar feet lit at grazing angles too dark),
+and the variance of the sun's bounce at N_avg 128 (image mean 0.85 to 1.30 of Mitsuba's across
+seeds, 16%: the top level's 6.8 m^2 VPLs carry the far field).
+
+N_avg sweep (`python -m methods.flc.study --n-avg 64,128,256,512,1024 --seeds 4`, 320 x 180),
+Mitsuba relmse.indirect mean over 4 seeds and FLC's own time (log-log slope against N_avg):
+cornell_spot 0.055 0.053 0.052 0.053 0.049 (slope 0.70), hidden_bounce 0.122 0.089 0.044 0.040
+0.037 (0.49), big_floor 0.046 0.047 0.046 0.045 0.046 (0.39), rooms/main 0.022 0.015 0.017 0.014
+0.014 (0.71), rooms/far 0.050 0.053 0.060 0.063 0.059 (0.68), sphere_inside 0.0083 0.0075 0.0066
+0.0068 0.0069 (0.75), lit_wall_corner 0.023 0.020 0.016 0.016 0.015 (0.65), cornell_box 0.038
+0.029 0.027 0.024 0.025 (0.93), sibenik 0.063 0.052 0.038 0.035 0.029 (0.70). Against Mitsuba
+the error stops falling where a bias floor is reached (the flc lobe, eq. 6, and no indirect
+shadows: rooms/far looks through a door), not noise: against jittered `manylights` with the flc
+lobe it falls with N_avg (test_n_avg_sweep_lowers_the_error). The slope is under 1 because
+the selection, deinterleave and blur passes are fixed costs.
+
+Frame time at 320 x 180 over `direct`'s (`gibench run --scenes highpoly_1m,sponza,conference
+--methods direct,flc,dss --res 320x180 --defaults-only --no-reference --force`, idle machine,
+shared passes measured once per view and added to every row): highpoly_1m 1.18, sponza 1.39,
+conference 1.35 (FLC's own stages regular / divergent / upscale_blur: 29 / 29 / 11, 9 / 14 /
+10, 21 / 30 / 12 ms; the shared GBuffer and shadow maps 396, 83, 155 ms); `dss` / `flc` 48,
+7.3, 12.8.
 
 | parameter             | default    | range        | meaning                                                     |
 |-----------------------|------------|--------------|-------------------------------------------------------------|
@@ -206,6 +218,8 @@ Commands:
 | dnear_factor          | 0.2        | 1e-3 .. 10   | D_near / R_scene (eq. 1), bounded by the D_near rule        |
 | dnear_rule            | lit        | lit, view, scene | D_near: min(dnear_factor R_scene, sqrt(A_lit / 4 pi)); dnear_factor min(R_scene, median view distance); dnear_factor R_scene (paper) |
 | eps_rel               | 1e-4       | 1e-7 .. 1    | eps of d_i = max(eps, |x - y|), relative to R_scene         |
+| near_field            | vpl_disc   | vpl_disc, paper_eps | eps_k = max(eps, sqrt(S_k / pi)) (the VPL's disc), or eps only |
+| regular_selection     | compute    | compute, single_draw | compute pass selects the drawn triangles (same image), or one draw of all |
 | tiling_level          | -1         | -1 .. 5      | L: 4^L interleaved tiles; -1: the tiling rule above         |
 | blur_radius           | -1         | -1 .. 32     | tent blur radius r in pixels; -1: 2^L - 1; 0: off           |
 | blur_depth_threshold  | 0.05       | 0 .. 10      | tangent-plane distance / camera distance for a blur neighbour |
@@ -233,6 +247,8 @@ converged estimate); minutes per frame on llvmpipe, over the stress suite's time
 Stress limit params:dnear_factor=0.001: D_near of 1e-3 R_scene makes S_0 ~1e6 times smaller, so
 nearly every triangle is divergent and tessellated into millions of VPLs (the paper's D_near is
 0.2 R_scene); the row exceeds the stress suite's timeout.
+Stress limit coplanar: coincident coplanar faces are two emitting triangles in eq. 4's sum over triangles (the paper's formulation) while Mitsuba's rays see one surface: the overlapped area emits twice (cornell_box 64x48: mean +6.3%).
+Stress limit flipped: a flipped winding reorders a divergent triangle's barycentric frame, so Alg. 2's keys of its tessellated pieces (noise at barycentric coordinates, Fig. 8) draw another random realisation: the same expectation, other noise (big_floor 64x48: indirect change 0.0865 against a seed-pair tolerance of 0.0853).
 """
 from __future__ import annotations
 
@@ -241,7 +257,8 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from bench.gl import load_program, set_uniforms
+from bench.gl import load_compute, load_program, set_uniforms
+from bench.gl.shaders import has_member
 from bench.gl.context import park
 from bench.gl.passes import GBuffer
 from bench.method import FrameOutput, MethodBase, Param, SkipRow
@@ -250,7 +267,16 @@ from .levels import REACHES, FlcLevels, lit_area, presplit_count
 from .tessellation import MAX_TESS_LEVEL, measure_fmax
 
 SHADERS = Path(__file__).parent / "shaders"
-BINDINGS = {"BINDING_DIVERGENT_VERTICES": 3, "BINDING_DIVERGENT_COMMAND": 4}
+BINDINGS = {"BINDING_DIVERGENT_VERTICES": 3, "BINDING_DIVERGENT_COMMAND": 4, "BINDING_KEPT_TRIANGLES": 5}
+SELECT_BINDINGS = {"BINDING_SELECT_FACES": 6, "BINDING_SELECT_POSITIONS": 7, "BINDING_SELECT_RANDOM": 8,
+                   "BINDING_SELECT_RANK": 9, "BINDING_SELECT_GROUPS": 10, "BINDING_SELECT_KEPT_INDICES": 11,
+                   "BINDING_SELECT_COMMAND": 12}
+SELECT_GROUP = 64           # invocations per workgroup of the ordered selection (select_regular.glsl)
+SELECT_CHUNK = 32           # consecutive triangles per invocation
+SELECT_MARGIN = 1.0 + 1e-5  # the compute test keeps float ties; the geometry shader decides exactly
+REGULAR_SELECTIONS = ("compute", "single_draw")
+# glMemoryBarrier bit: the compacted indices are read as an element array.
+GL_ELEMENT_ARRAY_BARRIER_BIT = 0x00000002
 NOISE_SIZE = 1024
 DIVERGENT_VERTEX_BYTES = 48
 MAX_DIVERGENT_BYTES = 128 * 1024 * 1024   # GL_MAX_SHADER_STORAGE_BLOCK_SIZE guaranteed on llvmpipe
@@ -271,6 +297,7 @@ MIN_TILE_PIXELS = 64 * 48
 
 
 DNEAR_RULES = ("lit", "view", "scene")
+NEAR_FIELDS = ("vpl_disc", "paper_eps")
 LIT_PIECES_PER_DNEAR = 16   # lit-area measurement: pieces of at most (D_near / 16)^2
 
 
@@ -339,6 +366,13 @@ class ForwardLightCuts(MethodBase):
         "dnear_rule": Param("lit", "D_near: lit = min(dnear_factor R_scene, sqrt(A_lit / 4 pi)) (N_avg lit VPLs "
                             "per level), view = dnear_factor min(R_scene, median view distance), scene = "
                             "dnear_factor R_scene (the paper)", choices=DNEAR_RULES),
+        "regular_selection": Param("compute", "regular pass: compute = a compute pass selects the triangles Alg. 1 keeps "
+                                   "(and the divergent ones) and the draw carries only those (same image); "
+                                   "single_draw = the paper's one draw of the whole scene through the geometry shader",
+                                   choices=REGULAR_SELECTIONS),
+        "near_field": Param("vpl_disc", "d_i = max(eps, |x - y|) with eps = max(eps_rel R_scene, sqrt(S_k / pi)): a "
+                            "VPL never lights a receiver more than the disc of area S_k it stands for (vpl_disc), "
+                            "or eps_rel R_scene only (paper_eps)", choices=NEAR_FIELDS),
         "eps_rel": Param(1e-4, "eps of d_i = max(eps, |x - y|), relative to the scene radius", 1e-7, 1.0),
         "tiling_level": Param(-1, "L: the viewport is split into 4^L interleaved tiles (-1: from the resolution, "
                               "tiles of at least 64 x 48 px each)", -1, 5),
@@ -397,12 +431,19 @@ class ForwardLightCuts(MethodBase):
                        DIVERGENT_CAPACITY=max(capacity, 1), TESS_MAX_LEVEL=MAX_TESS_LEVEL,
                        TESS_FMAX_SUB=float(fmax[TESS_SUB_LEVEL - 1]), TESS_TARGET_AREA=float(self.tess_target),
                        TESS_FMAX="float[%d](%s)" % (len(fmax), ", ".join(repr(float(v)) for v in fmax)),
-                       NOISE_SIZE=NOISE_SIZE)
+                       NOISE_SIZE=NOISE_SIZE, FLC_NEAR_DISC=params["near_field"] == "vpl_disc")
+        self.selected = params["regular_selection"] == "compute"
+        defines["REGULAR_SELECTED"] = self.selected
         self.regular = load_program(ctx, SHADERS / "splat_regular.glsl", defines)
+        self.select_steps = ()
+        index_buffer = gpu.ibo
+        if self.selected:
+            self._prepare_selection(gpu, defines)
+            index_buffer = self.kept_indices
         self.regular_vao = ctx.vertex_array(self.regular, [(gpu.vbo_position, "3f", "in_position"),
                                                            (gpu.vbo_normal, "3f", "in_normal"),
                                                            (gpu.vbo_random, "u", "in_vrand")],
-                                            index_buffer=gpu.ibo, index_element_size=4)
+                                            index_buffer=index_buffer, index_element_size=4)
         self.divergent_vertices = ctx.buffer(reserve=max(capacity, 1) * DIVERGENT_VERTEX_BYTES)
         self.command = ctx.buffer(RESET_COMMAND)
         self.command_reset = ctx.buffer(RESET_COMMAND)  # copied on the GPU: no CPU upload in a frame
@@ -424,8 +465,45 @@ class ForwardLightCuts(MethodBase):
         for t in (self.accum, self.blurred, self.indirect):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.accum_fbo = ctx.framebuffer([self.accum])
+        # the receivers in the tiled layout (deinterleave.glsl), rewritten every frame from the GBuffer
+        self.receivers = ctx.texture((tw, th), 4, dtype="u4")
+        self.receivers.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.receivers_fbo = ctx.framebuffer([self.receivers])
+        self.deinterleave = load_program(ctx, SHADERS / "deinterleave.glsl")
+        self.deinterleave_vao = ctx.vertex_array(self.deinterleave, [])
         self.blurred_fbo = ctx.framebuffer([self.blurred])
         self.indirect_fbo = ctx.framebuffer([self.indirect])
+
+    def _prepare_selection(self, gpu, defines: dict) -> None:
+        """Buffers and the three programs of the ordered triangle selection (select_regular.glsl)."""
+        ctx = self.ctx
+        count = gpu.triangle_count
+        self.select_chunks = max(1, -(-count // SELECT_CHUNK))
+        self.select_groups = -(-self.select_chunks // SELECT_GROUP)
+        select_defines = dict(defines, **SELECT_BINDINGS, SELECT_GROUP=SELECT_GROUP, SELECT_CHUNK=SELECT_CHUNK,
+                              SELECT_MARGIN=SELECT_MARGIN)
+        self.select_steps = tuple(load_compute(ctx, SHADERS / "select_regular.glsl", dict(select_defines, SELECT_STEP=k))
+                                  for k in (1, 2, 3))
+        self.select_rank = ctx.buffer(reserve=4 * max(count, 1))
+        self.select_group_counts = ctx.buffer(reserve=4 * self.select_chunks)
+        self.kept_indices = ctx.buffer(reserve=12 * max(count, 1))
+        self.kept_triangles = ctx.buffer(reserve=4 * max(count, 1))
+        self.select_command = ctx.buffer(reserve=20)
+        self.triangle_count = count
+
+    def _select(self, gpu, u_rand: int) -> None:
+        """The ordered selection of the regular pass's triangles (3 dispatches, no CPU read-back)."""
+        for buffer, name in ((gpu.ibo, "FACES"), (gpu.vbo_position, "POSITIONS"), (gpu.vbo_random, "RANDOM"),
+                             (self.select_rank, "RANK"), (self.select_group_counts, "GROUPS"),
+                             (self.kept_indices, "KEPT_INDICES"), (self.select_command, "COMMAND")):
+            buffer.bind_to_storage_buffer(SELECT_BINDINGS[f"BINDING_SELECT_{name}"])
+        self.kept_triangles.bind_to_storage_buffer(BINDINGS["BINDING_KEPT_TRIANGLES"])
+        for step, groups in zip(self.select_steps, (self.select_groups, 1, self.select_groups)):
+            set_uniforms(step, u_triangle_count=self.triangle_count, u_chunk_total=self.select_chunks, u_rand=u_rand)
+            step.run(group_x=groups)
+            self.ctx.memory_barrier(GL_SHADER_STORAGE_BARRIER_BIT)
+        # the draw reads the compacted indices and its command
+        self.ctx.memory_barrier(GL_ELEMENT_ARRAY_BARRIER_BIT | GL_COMMAND_BARRIER_BIT)
 
     def describe(self) -> dict:
         """The derived constants of this setup (for the record and the tests)."""
@@ -437,8 +515,11 @@ class ForwardLightCuts(MethodBase):
     # ------------------------------------------------------------------ frame (timed)
     def _bind_splat(self, prog, frame, j: int, unit0: int = 0) -> int:
         passes, gpu = frame.passes, frame.gpu
-        unit = passes.gbuffer.bind(prog, unit0)
-        unit = passes.shadows.bind(prog, unit)
+        unit = passes.shadows.bind(prog, unit0)
+        if has_member(prog, "u_receivers"):
+            self.receivers.use(unit)
+            prog["u_receivers"].value = unit
+            unit += 1
         gpu.bind_scene_buffers()
         self.divergent_vertices.bind_to_storage_buffer(BINDINGS["BINDING_DIVERGENT_VERTICES"])
         self.command.bind_to_storage_buffer(BINDINGS["BINDING_DIVERGENT_COMMAND"])
@@ -468,11 +549,19 @@ class ForwardLightCuts(MethodBase):
         self.accum_fbo.clear(0.0, 0.0, 0.0, 0.0)
         for j in range(self.params["progressive_frames"]):
             with prof.stage("regular"):
+                if j == 0:
+                    self._deinterleave(frame)
                 if self.run_divergent:
                     ctx.copy_buffer(self.command, self.command_reset)
+                if self.selected:
+                    self._select(frame.gpu, frame.random_u32(STREAM_LEVEL + j))
                 self._splat_state()
                 self._bind_splat(self.regular, frame, j)
-                self.regular_vao.render(moderngl.TRIANGLES)
+                if self.selected:
+                    self.kept_triangles.bind_to_storage_buffer(BINDINGS["BINDING_KEPT_TRIANGLES"])
+                    self.regular_vao.render_indirect(self.select_command, mode=moderngl.TRIANGLES, count=1)
+                else:
+                    self.regular_vao.render(moderngl.TRIANGLES)
             if self.run_divergent:
                 with prof.stage("divergent"):
                     # the appended patches (storage) and the command (indirect draw) are read next
@@ -489,6 +578,17 @@ class ForwardLightCuts(MethodBase):
         skipped = () if self.run_divergent else ("divergent",)
         return FrameOutput(direct=frame.passes.direct.radiance, indirect=self.indirect,
                            skipped_stages=skipped, extra=self.describe())
+
+    def _deinterleave(self, frame) -> None:
+        """The GBuffer's receivers in the tiled layout the splat fragments read (deinterleave.glsl)."""
+        ctx, prog = self.ctx, self.deinterleave
+        self.receivers_fbo.use()
+        ctx.viewport = (0, 0, self.receivers.width, self.receivers.height)
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        frame.passes.gbuffer.bind(prog, 0)
+        set_uniforms(prog, u_screen=(frame.width, frame.height), u_tiles_per_axis=self.tiles_per_axis,
+                     u_tile_size=self.tile_size)
+        self.deinterleave_vao.render(moderngl.TRIANGLES, vertices=3)
 
     def _resolve(self, frame) -> None:
         ctx, prog = self.ctx, self.resolve
@@ -514,10 +614,15 @@ class ForwardLightCuts(MethodBase):
         if getattr(self, "ctx", None) is None:
             return
         park(self.ctx)
-        for name in ("accum_fbo", "blurred_fbo", "indirect_fbo", "accum", "blurred", "indirect", "resolve_vao",
+        for name in ("receivers_fbo", "receivers", "deinterleave_vao", "deinterleave", "accum_fbo", "blurred_fbo",
+                     "indirect_fbo", "accum", "blurred", "indirect", "resolve_vao",
                      "resolve", "noise", "divergent_vao", "divergent", "command", "command_reset", "divergent_vertices",
-                     "regular_vao", "regular"):
+                     "regular_vao", "regular", "select_rank", "select_group_counts", "kept_indices",
+                     "kept_triangles", "select_command"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.release()
                 setattr(self, name, None)
+        for step in getattr(self, "select_steps", ()):
+            step.release()
+        self.select_steps = ()

@@ -14,7 +14,14 @@ camera view reads the lightmap. Passes:
    texel's surfel is the mean of the surface inside it, its area the exact area inside it.
    The UV unwrap (unwrap.py) is the article's: planar projection on the dominant normal axis,
    charts shelf-packed with one texel density for all charts; a chart that folds over itself
-   in projection is split into per-triangle charts.
+   in projection is split into per-triangle charts. Rules recorded here (issue #12, the stress
+   suite's degenerate geometry on big_floor, whose floor is two triangles): triangles of a key
+   on either side of a T-junction (an edge of one split at a vertex of the other) join one
+   chart, as if the edge were shared: a T-junction on a floor triangle split the floor into two
+   charts, each with the whole floor's box, the density fell from 5.0 to 3.2 texels/m and the
+   indirect image changed by 9% (L1 at 32x24; now 5e-5); a thin diagonal chart's box follows
+   its principal axes when that halves its area or more: a zero-area sliver across the floor had
+   a 74^2-texel box, -9% density and an indirect change of 4.5% (now -1% density, 0.9%).
 2. `lightmap_direct`: per covered texel, the shadowed direct irradiance of the scene lights on
    each side (bench/gl/shaders/direct_lighting.glsl, shared shadow maps), stored as a surfel:
    position, normal, world area, radiosity B = rho E of each side.
@@ -74,12 +81,30 @@ the error columns are those of the converged image; the latency (W frames, `extr
 is the price, and a moving light takes up to 2 W frames to settle.
 
 Lightmap size (texel density rule, unwrap.py): the lightmap side is the smallest that packs
-all charts at `texel_density` texels per metre, at most `max_lightmap_resolution` (then the
-density is the largest that fits, below the target). A fixed side gives a scene texels in
-inverse proportion to its area (big_floor, 2000 m^2, got 2 texels per metre at 128^2 and lost
-13% of its indirect light: its 1 m spot and 15 cm cubes were a texel or two); with the rule,
-cornell_spot (29 m^2) keeps 123^2 at 20 texels/m and the large scenes get the cap's 256^2
-(big_floor 5.0 texels/m; sponza 1.8, sibenik 1.5, conference 6.6). Chart boxes have no margin
+all charts at `texel_density` texels per scene radius R (the bounding sphere's, SceneFacts),
+at most `max_lightmap_resolution` (then the density is the largest that fits, below the
+target). A fixed side gives a scene texels in inverse proportion to its area (big_floor,
+2000 m^2, got 2 texels per metre at 128^2 and lost 13% of its indirect light: its 1 m spot
+and 15 cm cubes were a texel or two). The density is relative to R, not per metre, so that
+the lightmap does not depend on the scene's unit (rule recorded here, issue #12): with 20
+texels per metre (the first form of the rule), cornell_spot in centimetres (scaled by 1e-2,
+intensities by 1e-4) fell to the 16^2 minimum and its image changed by 9% (indirect 12%,
+mean -4.4%), hidden_bounce's by 16%; scaled by 1e2 it jumped to the cap. The default, 144
+texels per R, is the least at which big_floor (R 28.7 m) keeps the cap's 256^2 (5.0 texels
+per metre; at 100 per R, 3.5 texels/m, its indirect relMSE against Mitsuba doubles, 0.013 ->
+0.028, and at 72 it is 0.049), so every scene of the corpus gets the cap's 256^2: hidden_bounce
+17.2 texels/m, rooms 13.5, big_floor 5.0 (as with 20 texels/m; rooms had 13.9 before the
+T-junction rule below merged its charts); the real scenes were at the cap already (unwrap
+alone, before the GL's folded-chart splits: sponza 1.95, sibenik 1.47, conference 6.71
+texels/m, 1.95 / 1.48 / 6.60 before the T-junction and rotated-box rules); the small scenes that 20 texels/m left below the cap get it now:
+cornell_spot 42 texels/m (123^2 before), cornell_box 42, lit_wall_corner 56, sphere_inside 60.
+Their error hardly changes (128x96, indirect against the unshadowed Mitsuba reference at 256
+spp, mean ratio and relMSE, 20 texels/m -> the default: cornell_spot 0.995 / 0.0027 -> 0.995 /
+0.0025; cornell_box 1.007 / 0.0130 -> 1.009 / 0.0117; sphere_inside 0.9995 -> 1.0002, relMSE
+1e-4; lit_wall_corner 1.001 -> 1.004, relMSE 0.0037; rooms 1.006 / 0.0046 -> 1.009 / 0.0047;
+big_floor 0.971 / 0.0132 and hidden_bounce 1.004 / 0.0018 unchanged); their texels and their
+convergence window grow (cornell_spot 12,400 -> 52,600 texels, 7 -> 26 frames; sphere_inside
+3 -> 19; lit_wall_corner 3 -> 17; cornell_box 6 -> 23). Chart boxes have no margin
 texels of their own (unwrap.py: ceil(s w + 0.51) texels, the resolve clamps its bilinear taps
 to the chart's box), so a chart smaller than a texel costs one texel: with a texel of margin
 on each side (9 texels per small chart) sponza's 7,300 charts left it 0.09 texels per metre
@@ -132,7 +157,7 @@ as many nodes per texel at refine_ratio 0.2 as the 64-texel ones did at 0.25.
 
 | parameter               | default   | range                 | meaning                                                   |
 |-------------------------|-----------|-----------------------|-----------------------------------------------------------|
-| texel_density           | 20.0      | 1 .. 1000             | target lightmap texels per metre (quality; sweep 5, 10, 20, 40) |
+| texel_density           | 144.0     | 1 .. 10000            | target lightmap texels per scene radius (quality; sweep 36, 72, 144, 288) |
 | max_lightmap_resolution | 256       | 16 .. 1024            | largest lightmap side; the density drops when it is reached |
 | gather                  | hierarchy | hierarchy, all_pairs  | walk of one emitter octree over all texels, or every texel from every texel |
 | refine_ratio            | 0.2       | 0 .. 1                | hierarchy: node used whole when radius < ratio x distance (quality; sweep 0.1, 0.2, 0.5) |
@@ -142,10 +167,15 @@ as many nodes per texel at refine_ratio 0.2 as the 64-texel ones did at 0.25.
 A scene whose charts cannot be packed into the lightmap (too many separate charts for the
 resolution) is skipped with a message naming `max_lightmap_resolution`.
 
+Limits of the stress suite's parameter extremes (`gibench stress`, issue #12; each a cost the
+article states, at the suite's 300 s case timeout on llvmpipe, 2 shared cores):
+Stress limit params:refine_ratio=0: every node refined to its texels is the article's all-pairs loop ("Of course this pass is really slow"), texels^2 transfers per bounce (52,600^2 = 2.8e9 on cornell_spot's 256^2 lightmap) through the stackless walk: over 300 s (gather=all_pairs, the same sum without the walk, finishes)
+Stress limit params:bounces=8: the untimed first frame converges bounces x W frames of the amortised gather (the article computes the gather "in more than one frame by sampling only a few emitters each time"), each bounce re-gathering its window: 8 x 26 = 208 frames of work on cornell_spot's 256^2 lightmap, over 300 s (hidden_bounce, 256^2 already with 20 texels/m, timed out before the density rule changed)
+
 Quality ladder (`gibench run`), fast -> accurate:
-  1. texel_density 10, max_lightmap_resolution 192, refine_ratio 0.5;
-  2. the defaults (20 texels/m, 256^2 at most, refine_ratio 0.2);
-  3. texel_density 40, max_lightmap_resolution 384.
+  1. texel_density 72, max_lightmap_resolution 192, refine_ratio 0.5;
+  2. the defaults (144 texels per scene radius, 256^2 at most, refine_ratio 0.2);
+  3. texel_density 288, max_lightmap_resolution 384.
 The lightmap's density is the error that dominates (the hierarchy at 0.2 is within 1% of the
 all-pairs sum, at 0.5 within ~4%), so the rungs turn the density and, on the large and real
 scenes where the cap binds (sponza gets 1.3 / 1.8 / 2.8 texels per metre), the cap with it;
@@ -153,10 +183,12 @@ the top rung keeps refine_ratio 0.2 (0.1 costs ~2.5x the visits for < 1%). The p
 hardly depends on the rung (the emitter budget fixes the emitters per frame; more receivers
 walk smaller slices of a larger tree); the convergence window (untimed frame 0) grows with
 the texel count: on sponza the top rung's window is 48 frames (98k texels, 2x the default's).
+Stress limit coplanar: coincident coplanar faces are two charts emitting the same surface (every triangle is unwrapped and emits) while Mitsuba's rays see one surface: the overlapped area emits twice and takes lightmap space (cornell_box 64x48: mean +6.1%; big_floor indirect 5.6%, lit_wall_corner 1.9%).
 """
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import moderngl
@@ -178,6 +210,9 @@ HIERARCHY_DEFINES = {
     "FLAT_DISTANCE_TOLERANCE": 1e-5,  # ... and every child centre within this many node radii of its plane
     "PLANE_TOLERANCE": 1e-4,          # a receiver within this many node radii of a flat node's plane gets nothing from it
 }
+# the manual's "Stress limit PATTERN: reason" lines (PATTERN may hold colons: params:NAME=VALUE),
+# handed to `gibench stress` as the class's stress_limits (it reads the class, not this module)
+STRESS_LIMITS = dict(re.findall(r"^Stress limit (\S+): (.+)$", __doc__, re.MULTILINE))
 TILE_TEXELS = 16            # hierarchical gather: one workgroup per tile of at most 16 nearby texels
 MAX_WORK_GROUPS = 65535     # per dispatch dimension (the GL minimum of GL_MAX_COMPUTE_WORK_GROUP_COUNT)
 WELD_TOLERANCE_REL = 1e-6   # vertices closer than this (times the scene radius) share chart edges
@@ -219,13 +254,15 @@ def _tile_records(tiles, position, normal, area, texel_m: float) -> np.ndarray:
 class TextureSpacePBGI(MethodBase):
     name = "pbgi"
     summary = "Texture-space point-based GI: lightmap texels as surfels, Bunnell disk transfer over an emitter octree"
-    ladder = ({"texel_density": 10.0, "max_lightmap_resolution": 192, "refine_ratio": 0.5}, {},
-              {"texel_density": 40.0, "max_lightmap_resolution": 384})
+    ladder = ({"texel_density": 72.0, "max_lightmap_resolution": 192, "refine_ratio": 0.5}, {},
+              {"texel_density": 288.0, "max_lightmap_resolution": 384})
     stages = ("lightmap_direct", "emitter_hierarchy", "gather", "resolve")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
+    stress_limits = STRESS_LIMITS
     params = {
-        "texel_density": Param(20.0, "lightmap texels per metre (the lightmap side is the smallest that packs "
-                                     "the charts at this density)", 1.0, 1000.0, quality=True, sweep=(5.0, 10.0, 20.0, 40.0)),
+        "texel_density": Param(144.0, "lightmap texels per scene radius (the lightmap side is the smallest that "
+                                      "packs the charts at this density)", 1.0, 10000.0, quality=True,
+                               sweep=(36.0, 72.0, 144.0, 288.0)),
         "max_lightmap_resolution": Param(256, "largest lightmap side in texels (the density drops when reached)",
                                          16, 1024),
         "gather": Param("hierarchy", "emitters: 'hierarchy' (one octree over every texel) or 'all_pairs'",
@@ -343,7 +380,8 @@ class TextureSpacePBGI(MethodBase):
                 try:
                     uw = unwrap(gpu.positions.astype(np.float64), gpu.faces.astype(np.int64),
                                 self.params["max_lightmap_resolution"], WELD_TOLERANCE_REL * gpu.radius,
-                                split=split, density=self.params["texel_density"])
+                                split=split, density=self.params["texel_density"] / gpu.radius,
+                                shading_normals=gpu.normals)
                 except LightmapTooSmall as exc:
                     raise SkipRow(f"scene '{scene.name}': {exc}") from None
                 res = uw.resolution
@@ -390,7 +428,7 @@ class TextureSpacePBGI(MethodBase):
     @staticmethod
     def _base_charts(gpu, triangles) -> np.ndarray:
         chart = find_charts(gpu.positions.astype(np.float64), gpu.faces.astype(np.int64),
-                            WELD_TOLERANCE_REL * gpu.radius)[0]
+                            WELD_TOLERANCE_REL * gpu.radius, shading_normals=gpu.normals)[0]
         return np.unique(chart[triangles])
 
     def _scene_vao(self, gpu, program):

@@ -226,6 +226,35 @@ def test_deterministic_finite_and_timed(gl_ctx):
     assert abs(a.indirect.mean() / ref.indirect.mean() - 1) < 0.05
 
 
+def test_sampling_pattern_follows_the_geometry_not_the_triangle_order(gl_ctx):
+    """A surfel's interleaved sub-buffer is keyed by its triangle's centroid, not its index:
+    the same scene with its triangles in another order gives the same image at the same seed,
+    and a T-junction on 32 triangles changes hidden_bounce's image by its own split surfels only
+    (keyed by triangle index, every later triangle's surfels drew new sub-buffers: the whole
+    interleaving noise changed, mean +-3% at 32 x 24, as much as another seed)."""
+    from bench.scene import Scene
+    from bench.stress_perturb import t_junction
+    scene = load_scene("hidden_bounce")
+    perm = np.random.default_rng(1).permutation(scene.triangle_count)
+    shuffled = Scene.build("hidden_bounce_shuffled", scene.vertices, scene.faces[perm], scene.albedo[perm],
+                           scene.lights, scene.cameras, normals=scene.normals)
+
+    def image(s, seed=0):
+        r = run_method(gl_ctx, DeepScreenSpace, s, "main", 32, 24, seed=seed, frames=1)
+        return (r.direct + r.indirect).astype(np.float64)
+
+    def change(a, b):
+        return float(np.abs(a - b).sum() / np.abs(b).sum())
+
+    base = image(scene)
+    other_seeds = [change(image(scene, seed), base) for seed in (1, 2, 3)]
+    assert min(other_seeds) > 0.01                       # the interleaving noise this test must not see
+    assert change(image(shuffled), base) < 1e-4          # float rounding of the blending order only
+    split = image(t_junction(scene))
+    assert change(split, base) < 0.2 * min(other_seeds)
+    assert abs(split.mean() / base.mean() - 1.0) < 0.005
+
+
 def test_threshold_cuts_energy_monotonically(gl_ctx):
     scene = load_scene("cornell_spot")
     means = [run_method(gl_ctx, DeepScreenSpace, scene, "main", 32, 24, {"threshold": t}, frames=1).indirect.mean()

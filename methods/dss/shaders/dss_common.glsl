@@ -7,7 +7,7 @@
 struct Surfel {
     vec4 position_area;     // xyz centre (re-centred world), w area (m^2)
     vec3 normal;            // unit geometric normal of its triangle: the geometric term's cosine
-    uint key;               // stable hash of (patch, sub-triangle): picks the interleaved sub-buffer
+    uint key;               // stable hash of (triangle key, sub-triangle): picks the interleaved sub-buffer
     vec4 radiosity_front;   // rgb rho E on the side +shading_normal, w luminance
     vec4 radiosity_back;    // rgb rho E on the side -shading_normal, w luminance
     vec4 shading_normal;    // xyz unit shading normal at the centre: picks the side a receiver sees

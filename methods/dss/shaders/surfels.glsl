@@ -18,7 +18,9 @@
 #endif
 #include "dss_common.glsl"
 
-struct DssTriangle { vec4 v0; vec4 v1; vec4 v2; vec4 normal; vec4 n0; vec4 n1; vec4 n2; };  // n_i: vertex normals
+// normal.w: the triangle's key (an integer < 2^24, exact in float32; method.py triangle_keys);
+// n_i: vertex normals
+struct DssTriangle { vec4 v0; vec4 v1; vec4 v2; vec4 normal; vec4 n0; vec4 n1; vec4 n2; };
 layout(std430, binding = BINDING_DSS_TRIANGLES) readonly buffer DssTriangleBlock { DssTriangle dss_triangles[]; };
 layout(std430, binding = BINDING_DSS_PATCHES) readonly buffer DssPatchBlock { uvec4 dss_patches[]; };  // triangle, K, q, 0
 
@@ -169,9 +171,13 @@ void main() {
     ns = len > 0.0 ? ns / len : n;
     float lf = luminance(front), lb = luminance(back);
     atomicMax(max_luminance_bits, floatBitsToUint(max(max(lf, lb), 0.0)));
-    // independent of the order the GPU emits surfels in, so the sub-buffer choice is deterministic
+    // independent of the order the GPU emits surfels in, so the sub-buffer choice is deterministic,
+    // and of the triangle's index: the triangle's key (normal.w, from its centroid relative to the
+    // scene, set in prepare), its sub-patch q and the sub-triangle's tessellation coordinates
     vec3 cc = (e_coord[0] + e_coord[1] + e_coord[2]) / 3.0;
-    uint key = hash_u32(e_patch[0] * 2654435761u ^ hash_u32(floatBitsToUint(cc.x) ^ hash_u32(floatBitsToUint(cc.y))));
+    uint triangle_key = uint(dss_triangles[t].normal.w);
+    uint key = hash_u32(triangle_key * 2654435761u ^ hash_u32(dss_patches[e_patch[0]].z ^
+                        hash_u32(floatBitsToUint(cc.x) ^ hash_u32(floatBitsToUint(cc.y)))));
     surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, 0.0));
 #endif
 }

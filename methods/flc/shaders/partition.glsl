@@ -8,6 +8,8 @@ const float flc_s[FLC_N + 1] = FLC_S;
 const float flc_s_bar[FLC_N + 1] = FLC_S_BAR;
 const float flc_d[FLC_N + 2] = FLC_D;
 
+float unit_from_u32(uint h) { return float(h) * (1.0 / 4294967296.0); }  // [0, 1], exact for small values
+
 // Alg. 1: the first level k with u < A / S_bar_k, -1 if the triangle is discarded.
 // P(level k) = A / S_bar_k - A / S_bar_{k-1} = A / S_k (eq. 3 as printed is the cumulative one).
 int flc_level(float u, float area) {

@@ -1,7 +1,9 @@
 // Regular pass (Sec. 6): one draw of the whole scene. The geometry shader computes each
 // triangle's area and random value (Alg. 2: u_rand xor the three vertices' v_rand), appends
 // divergent triangles (area > S_bar_N) to the divergent buffer and bumps the indirect draw
-// command, and splats the regular ones that Alg. 1 keeps.
+// command, and splats the regular ones that Alg. 1 keeps. With REGULAR_SELECTED the draw holds
+// only the triangles select_regular.glsl kept, in scene order, and kept_triangles[] gives each
+// one's scene index (gl_PrimitiveIDIn counts the kept ones).
 #include "common.glsl"
 #include "vpl_splat.glsl"
 
@@ -30,6 +32,10 @@ in uint v_rand[];
 vec3 shading_normal(vec3 bary) {  // interpolated vertex normals (normalised by the caller)
     return bary.x * v_normal[0] + bary.y * v_normal[1] + bary.z * v_normal[2];
 }
+
+#if REGULAR_SELECTED
+layout(std430, binding = BINDING_KEPT_TRIANGLES) readonly buffer KeptTriangles { uint kept_triangles[]; };
+#endif
 
 #if DIVERGENT_APPEND
 void store_vertex(uint o, vec3 a, vec3 e1, vec3 e2, vec2 bary, uint tri, uint vr) {
@@ -69,7 +75,11 @@ void append_divergent(vec3 a, vec3 b, vec3 c, float area, uint tri, uint vr) {
 void main() {
     vec3 a = v_position[0], b = v_position[1], c = v_position[2];
     float area = 0.5 * length(cross(b - a, c - a));
+#if REGULAR_SELECTED
+    uint tri = kept_triangles[gl_PrimitiveIDIn];
+#else
     uint tri = uint(gl_PrimitiveIDIn);
+#endif
     uint vr = v_rand[0] ^ v_rand[1] ^ v_rand[2];
     if (area > FLC_DIVERGENT_AREA) {
 #if DIVERGENT_APPEND

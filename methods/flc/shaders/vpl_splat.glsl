@@ -8,14 +8,12 @@
 #include "common.glsl"
 #include "shadow.glsl"
 #include "partition.glsl"
+#include "receivers.glsl"
 
 uniform uint u_rand;           // per (sub-)frame random value of the level draw (Alg. 2)
 uniform uint u_rand_tile;      // independent stream: the interleaved-sampling tile of a VPL
 uniform uint u_rand_jitter;    // independent stream: the VPL position (same as `manylights`)
 uniform bool u_jitter;         // progressive mode: VPL jittered uniformly over its triangle
-uniform ivec2 u_screen;        // full-resolution W, H
-uniform int u_tiles_per_axis;  // 2^L: 4^L interleaved tiles
-uniform ivec2 u_tile_size;     // one tile's pixels (ceil(W / 2^L), ceil(H / 2^L))
 uniform float u_weight;        // 4^L tiles / progressive frames
 uniform float u_eps;           // d_i = max(eps, |x - y|) in H
 
@@ -31,8 +29,6 @@ layout(std430, binding = BINDING_DIVERGENT_VERTICES) buffer DivergentBlock { Div
 layout(std430, binding = BINDING_DIVERGENT_COMMAND) buffer DivergentCommand {
     uint cmd_count; uint cmd_instances; uint cmd_first; uint cmd_base_instance; uint cmd_pad; uint cmd_reserved;
 };
-
-float unit_from_u32(uint h) { return float(h) * (1.0 / 4294967296.0); }  // [0, 1], exact for small values
 
 // Shadowed direct irradiance on both sides of a surface with unit geometric normal n and unit
 // shading normal ns (oriented into n's hemisphere), as direct_irradiance(p, ns, n, true) and
@@ -108,6 +104,7 @@ flat out vec3 g_front;      // rho E on the side +ns (ns oriented into n's hemis
 flat out vec3 g_back;       // rho E on the side -ns
 flat out float g_weight;    // S_k * tiles / frames
 flat out int g_level;
+flat out float g_dmin;      // d_i = max(g_dmin, |x - y|): eps, or the radius of the VPL's disc of area S_k
 
 // Alg. 1 + eq. 6 + splat. `key` is the (sub-)triangle's xor of per-vertex random values (Alg. 2,
 // without u_rand), y the VPL centre, ns_raw the shading normal interpolated at y.
@@ -175,6 +172,11 @@ void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint key, uint tri, 
         g_back = back;
         g_weight = flc_s[level] * u_weight;
         g_level = level;
+#if FLC_NEAR_DISC
+        g_dmin = max(u_eps, sqrt(flc_s[level] * INV_PI));
+#else
+        g_dmin = u_eps;
+#endif
         gl_Position = vec4(corners[v], 0.0, 1.0);
         EmitVertex();
     }
@@ -183,8 +185,7 @@ void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint key, uint tri, 
 #endif
 
 #if defined FRAGMENT_SHADER
-uniform sampler2D u_gbuffer_position;
-uniform sampler2D u_gbuffer_normal;
+uniform usampler2D u_receivers;   // deinterleaved receivers (deinterleave.glsl), the tiled layout
 flat in vec3 g_y;
 flat in vec3 g_n;
 flat in vec3 g_ns;
@@ -192,16 +193,13 @@ flat in vec3 g_front;
 flat in vec3 g_back;
 flat in float g_weight;
 flat in int g_level;
+flat in float g_dmin;
 layout(location = 0) out vec4 out_sum;
 void main() {
-    ivec2 q = ivec2(gl_FragCoord.xy);
-    ivec2 phase = q / u_tile_size;
-    ivec2 px = phase + u_tiles_per_axis * (q - phase * u_tile_size);
-    if (any(greaterThanEqual(px, u_screen))) discard;
-    vec4 p = texelFetch(u_gbuffer_position, px, 0);
-    if (p.w == 0.0) discard;
-    vec3 nx = texelFetch(u_gbuffer_normal, px, 0).xyz;
-    vec3 v = g_y - p.xyz;                       // x -> y
+    uvec4 receiver = texelFetch(u_receivers, ivec2(gl_FragCoord.xy), 0);
+    if (receiver.w == RECEIVER_NONE) discard;  // no surface, or past the screen's edge
+    vec3 nx = decode_receiver_normal(receiver.w);
+    vec3 v = g_y - uintBitsToFloat(receiver.xyz);   // x -> y
     float dist = length(v);
     if (dist <= 0.0) discard;
     vec3 w = v / dist;
@@ -215,7 +213,7 @@ void main() {
     // the side of the shading normal x is on picks the radiosity (Mitsuba's twosided diffuse, as
     // `manylights`); the geometric term's cosine is against the face normal
     vec3 radiosity = dot(g_ns, w) < 0.0 ? g_front : g_back;
-    float dc = max(u_eps, dist);
+    float dc = max(g_dmin, dist);
     // rho_t E 3/(2 pi) c (eq. 6) * cos_x c / d_i^2 (eq. 5 without rho_x / pi) * S_k f^k (eq. 10)
     out_sum = vec4(radiosity * (1.5 * INV_PI * c * c * cos_x / (dc * dc) * f * g_weight), 0.0);
 }

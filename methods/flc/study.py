@@ -1,0 +1,131 @@
+"""FLC's single-frame study at its defaults (issue 10), the manual's tables from one command:
+
+    python -m methods.flc.study --res 320x180 --seeds 8 --jitter-frames 4 \\
+        cornell_spot hidden_bounce big_floor rooms rooms:far sphere_inside lit_wall_corner cornell_box
+
+Per scene[:view], one FLC frame per seed (0 .. seeds-1) at the defaults (or `--param k=v`):
+- against jittered `manylights` with the flc lobe (the sum FLC estimates; big_floor's on
+  `analysis.refined_scene(scene, 0.5)`, its 80 m floor is 2 triangles): the image-mean ratio, its
+  relative spread across seeds (std / mean), the per-pixel relMSE (`bench.metrics.relmse`) and
+  what a black image (`direct`) scores; skipped with `--jitter-frames 0` (on the real scenes
+  `manylights` sums 10^5 triangles at every pixel: use a small `--res` there);
+- against the Mitsuba unshadowed one-bounce reference (cached; rendered on a miss): relmse.indirect
+  mean and max over the seeds and `direct`'s;
+- FLC's own stages (regular + divergent + upscale_blur), median over the seeds, ms.
+With `--n-avg 64,128,...` it sweeps N_avg instead and prints, per scene, the Mitsuba error at each
+value (mean over the seeds) and FLC's own time with its log-log slope against N_avg.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from bench import metrics
+from bench.corpus import load_scene
+from bench.gl.context import create_context
+from bench.harness import run_method
+from bench.scene import compute_facts
+
+from .analysis import refined_scene
+from .method import ForwardLightCuts
+
+OWN_STAGES = ForwardLightCuts.stages
+
+
+def _own_ms(result) -> float:
+    return sum(float(np.median(result.stage_ms[k])) for k in OWN_STAGES if k in result.stage_ms)
+
+
+def _mitsuba(scene, view, width, height):
+    from reference.api import get_reference
+    from reference.env import ReferenceUnavailable
+    try:
+        return get_reference(scene, view, width, height, "indirect_unshadowed", spp_cap=1024)
+    except ReferenceUnavailable:
+        return None
+
+
+def study_view(ctx, name: str, view: str, width: int, height: int, seeds, params: dict, jitter_frames: int) -> dict:
+    """The figures of one view (see the module docstring)."""
+    from methods.manylights.method import ManyLights
+    scene = load_scene(name)
+    facts = compute_facts(scene)
+    out: dict = {"scene": name, "view": view}
+    images, own = [], []
+    for s in seeds:
+        r = run_method(ctx, ForwardLightCuts, scene, view, width, height, params, seed=s, frames=1, facts=facts)
+        images.append(r.indirect.astype(np.float64))
+        own.append(_own_ms(r))
+    out["own_ms"] = float(np.median(own))
+    if jitter_frames > 0:
+        ref_scene = refined_scene(scene, 0.5) if name == "big_floor" else scene
+        ml = run_method(ctx, ManyLights, ref_scene, view, width, height,
+                        {"emission": "flc", "jitter_frames": jitter_frames}, seed=99, frames=1,
+                        facts=compute_facts(ref_scene)).indirect.astype(np.float64)
+        ratio = np.array([img.mean() / ml.mean() for img in images])
+        out.update(ml_ratio=float(ratio.mean()),
+                   ml_spread=float(ratio.std(ddof=1) / ratio.mean()) if len(ratio) > 1 else 0.0,
+                   ml_relmse=float(np.mean([metrics.relmse(img, ml) for img in images])),
+                   ml_relmse_black=metrics.relmse(np.zeros_like(ml), ml))
+    ref = _mitsuba(scene, view, width, height)
+    if ref is not None:
+        errors = [metrics.relmse(img, ref.mean, ref.coverage) for img in images]
+        out.update(mitsuba_relmse=float(np.mean(errors)), mitsuba_relmse_max=float(np.max(errors)),
+                   mitsuba_relmse_direct=metrics.relmse(np.zeros_like(ref.mean), ref.mean, ref.coverage))
+    return out
+
+
+def sweep_view(ctx, name: str, view: str, width: int, height: int, seeds, params: dict, n_avgs) -> dict:
+    """Mitsuba relmse.indirect (mean over seeds) and FLC's own time at each N_avg, and the slope."""
+    scene = load_scene(name)
+    facts = compute_facts(scene)
+    ref = _mitsuba(scene, view, width, height)
+    errors, times = [], []
+    for n in n_avgs:
+        e, t = [], []
+        for s in seeds:
+            r = run_method(ctx, ForwardLightCuts, scene, view, width, height, dict(params, n_avg=n), seed=s,
+                           frames=1, facts=facts)
+            if ref is not None:
+                e.append(metrics.relmse(r.indirect, ref.mean, ref.coverage))
+            t.append(_own_ms(r))
+        errors.append(float(np.mean(e)) if e else float("nan"))
+        times.append(float(np.median(t)))
+    slope = float(np.polyfit(np.log(n_avgs), np.log(times), 1)[0])
+    return {"scene": name, "view": view, "n_avg": list(n_avgs), "mitsuba_relmse": errors, "own_ms": times,
+            "time_slope": slope, "error_falls_every_step": all(a > b for a, b in zip(errors, errors[1:]))}
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(prog="python -m methods.flc.study", description=__doc__.splitlines()[0])
+    ap.add_argument("views", nargs="+", help="scene or scene:view")
+    ap.add_argument("--res", default="320x180")
+    ap.add_argument("--seeds", type=int, default=8)
+    ap.add_argument("--jitter-frames", type=int, default=4, help="jittered manylights frames (0: skip)")
+    ap.add_argument("--n-avg", default="", help="comma-separated N_avg values: sweep instead")
+    ap.add_argument("--param", action="append", default=[], help="flc parameter k=v (JSON value)")
+    args = ap.parse_args(argv)
+    width, height = (int(v) for v in args.res.lower().split("x"))
+    params = {}
+    for item in args.param:
+        key, _, value = item.partition("=")
+        try:
+            params[key] = json.loads(value)
+        except json.JSONDecodeError:
+            params[key] = value
+    ctx = create_context()
+    seeds = range(args.seeds)
+    for item in args.views:
+        name, _, view = item.partition(":")
+        view = view or "main"
+        if args.n_avg:
+            row = sweep_view(ctx, name, view, width, height, seeds, params, [int(v) for v in args.n_avg.split(",")])
+        else:
+            row = study_view(ctx, name, view, width, height, seeds, params, args.jitter_frames)
+        print(json.dumps(row), flush=True)
+
+
+if __name__ == "__main__":
+    main()
