@@ -19,6 +19,8 @@ DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside",
 # `--quick`: a first useful report in minutes: two procedural scenes and one real one, the fast and
 # the default rung of each ladder, a short timing budget
 QUICK_SCENES = ("cornell_spot", "rooms", "sponza")
+REFERENCE_SPP = 1024        # reference spp cap of `run` and `sweep`
+QUICK_REFERENCE_SPP = 256   # --quick: a first report; the reference floor shows as wider intervals
 DEFAULT_RESOLUTION = (320, 180)   # the design point of the interleaved screen-space methods starts here
 DEFAULT_METHODS = ("direct", "ir_unshadowed", "ir_shadowed", "manylights", "flc", "ssdo", "dss", "val_clustered", "pbgi",
                    "visibility_gates")
@@ -103,7 +105,8 @@ def cmd_run(args) -> int:
     cfg = RunConfig(scenes=scenes, methods=methods, width=width, height=height, frames=args.frames,
                     warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None, force=args.force,
                     views=_csv(args.views) if args.views else None, params=params,
-                    references=not args.no_reference, reference_spp_cap=args.reference_spp,
+                    references=not args.no_reference,
+                    reference_spp_cap=args.reference_spp or (QUICK_REFERENCE_SPP if args.quick else REFERENCE_SPP),
                     progress=not args.no_progress, ladders=not args.defaults_only,
                     timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers)
     df, runner = run(cfg, log=lambda m: print(m, file=sys.stderr))
@@ -178,7 +181,7 @@ def cmd_sweep(args) -> int:
         _csv(args.scenes), methods, log=lambda m: print(m, file=sys.stderr), width=width, height=height,
         frames=args.frames, warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None,
         force=args.force, views=_csv(args.views) if args.views else None, references=not args.no_reference,
-        reference_spp_cap=args.reference_spp, progress=not args.no_progress)
+        reference_spp_cap=args.reference_spp or REFERENCE_SPP, progress=not args.no_progress)
     print(runner.summary())
     print(f"{len(table)} sweep points, {len(pareto)} on the Pareto fronts")
     print(f"sweep: {runner.run_dir / 'sweep.csv'}")
@@ -249,8 +252,8 @@ def main(argv=None) -> int:
         p.add_argument("--out", default=None, help="run folder (default runs/<timestamp>, runs/latest points to it)")
         p.add_argument("--force", action="store_true", help="re-run rows found in the cache")
         p.add_argument("--no-reference", action="store_true", help="skip Mitsuba references, error metrics and speed-ups")
-        p.add_argument("--reference-spp", type=int, default=1024,
-                       help="spp cap of the references (default 1024; they stop earlier, at 1/10 of the best "
+        p.add_argument("--reference-spp", type=int, default=None,
+                       help="spp cap of the references (default 1024, 256 with run --quick; they stop earlier, at 1/10 of the best "
                             "method's MSE; a floor above that shows as wider intervals and lower-bound speed-ups). "
                             "4096 takes ~4x the reference time")
         p.add_argument("--no-progress", action="store_true")
@@ -265,7 +268,8 @@ def main(argv=None) -> int:
                      help="run rows and references on an existing dask.distributed cluster (tcp://host:8786)")
     run.add_argument("--quick", action="store_true",
                      help="a first report in minutes: scenes " + ",".join(QUICK_SCENES)
-                          + " (unless --scenes), the fastest and the default rung of each ladder, timing budget 0.3 s")
+                          + " (unless --scenes), the fastest and the default rung of each ladder, timing budget 0.3 s, "
+                          "references capped at %d spp (unless --reference-spp)" % QUICK_REFERENCE_SPP)
     run.add_argument("--defaults-only", action="store_true",
                      help="run each method at its defaults only (default: its quality ladder, fast -> accurate, "
                           "one time-vs-error curve per method; a method given --param runs those sets instead)")

@@ -98,3 +98,23 @@ def test_reference_build_without_mitsuba_is_one_line(capsys, monkeypatch):
     monkeypatch.setitem(env._state, "error", "Mitsuba 3 is not installed (No module named 'mitsuba'): pip install mitsuba")
     assert main(["reference", "build", "--scenes", "cornell_spot", "--res", "16x12"]) == 1
     assert "Mitsuba 3 is not installed" in _one_line_err(capsys)
+
+
+@pytest.mark.parametrize("extra, expected", [([], 1024), (["--quick"], 256), (["--quick", "--reference-spp", "512"], 512)])
+def test_reference_cap_of_run_and_quick(monkeypatch, extra, expected):
+    """`run` caps references at 1024 spp, `run --quick` (a first report in minutes) at 256,
+    unless --reference-spp says otherwise."""
+    import bench.cli as cli
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_run(cfg, log=None):
+        seen["cap"] = cfg.reference_spp_cap
+        raise Stop
+    import bench.runner
+    monkeypatch.setattr(bench.runner, "run", fake_run)
+    with pytest.raises(Stop):
+        cli.main(["run", "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
+    assert seen["cap"] == expected
