@@ -48,7 +48,8 @@ reported, not judged). A run that raises is a failure; SkipRow is "skipped".
 
     Stress limit translate=1e+05R: float32 positions, shadow acne above 1e4 radii (change 0.3)
 
-documents every perturbation whose name matches the fnmatch pattern (`translate=*`, `params:mu=*`).
+documents every perturbation whose name matches the fnmatch pattern (`translate=*`, `params:mu=*`);
+the reason is the rest of that one line (a wrapped continuation is not read: keep it one line).
 The references' manual is the docstring of the `reference` package and of reference.integrators.
 
 Run folder: `stress.csv` (the table), `stress.json` (configuration, machine, fuzz outcome),

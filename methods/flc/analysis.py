@@ -258,7 +258,7 @@ def level_statistics(ctx, scene, camera: str, width: int, height: int, flc_param
 
 def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=range(8),
                        flc_params: dict | None = None, jitter_frames: int = 16, reference_seed: int = 99,
-                       reference_scene=None, reference_image=None) -> dict:
+                       reference_scene=None, reference_image=None, mitsuba=None) -> dict:
     """One FLC frame per seed against `manylights` with the FLC lobe and `jitter_frames` jittered
     VPL positions (the sum FLC is unbiased for; see method.py), rendered on `reference_scene` if
     given (the same surfaces finer cut: `manylights` has one VPL per triangle, so a scene of huge
@@ -268,7 +268,10 @@ def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=r
     over mean squared reference), 'relmse_pixel' (the report's per-pixel relMSE, `bench.metrics`)
     and 'relmse_pixel_black' (what an image without indirect light, `direct`, scores), 'splat_ms'
     (regular + divergent + upscale_blur GPU time), the mean ratio 'ratio_mean', the relative
-    spread 'ratio_spread' (std / mean over the seeds) and 'reference_mean'."""
+    spread 'ratio_spread' (std / mean over the seeds) and 'reference_mean'. With `jitter_frames`
+    0 and no `reference_image` there is no `manylights` reference (only 'splat_ms' and what follows).
+    `mitsuba` (a `reference.api.get_reference` result: .mean, .coverage) adds per-seed
+    'mitsuba_relmse' (the report's relmse.indirect) and 'mitsuba_relmse_direct' (`direct`'s)."""
     from bench.harness import run_method
     from methods.flc.method import ForwardLightCuts
     from methods.manylights.method import ManyLights
@@ -279,21 +282,32 @@ def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=r
         ref = np.asarray(reference_image, dtype=np.float64)
         if ref.shape != (height, width, 3):
             raise ValueError(f"flc study: reference_image has shape {ref.shape}, expected {(height, width, 3)}")
-    else:
+    elif jitter_frames > 0:
         ref = run_method(ctx, ManyLights, ref_scene, camera, width, height,
                          {"emission": "flc", "jitter_frames": jitter_frames}, seed=reference_seed, frames=1,
                          facts=compute_facts(ref_scene)).indirect.astype(np.float64)
-    ratio, relmse, relmse_pixel, splat = [], [], [], []
+    else:
+        ref = None
+    ratio, relmse, relmse_pixel, splat, against_mitsuba = [], [], [], [], []
     for s in seeds:
         r = run_method(ctx, ForwardLightCuts, scene, camera, width, height, flc_params, seed=s, frames=1, facts=facts)
         img = r.indirect.astype(np.float64)
-        ratio.append(img.mean() / ref.mean())
-        relmse.append(float(((img - ref) ** 2).mean() / (ref ** 2).mean()))
-        relmse_pixel.append(metrics.relmse(img, ref))
         splat.append(sum(float(np.median(r.stage_ms[k])) for k in ("regular", "divergent", "upscale_blur")
                          if k in r.stage_ms))
-    ratio = np.asarray(ratio)
-    return {"ratio": ratio, "relmse": np.asarray(relmse), "relmse_pixel": np.asarray(relmse_pixel),
-            "relmse_pixel_black": metrics.relmse(np.zeros_like(ref), ref), "splat_ms": np.asarray(splat),
-            "ratio_mean": float(ratio.mean()), "ratio_spread": float(ratio.std(ddof=1) / ratio.mean()) if len(ratio) > 1 else 0.0,
-            "reference_mean": float(ref.mean()), "reference": ref}
+        if mitsuba is not None:
+            against_mitsuba.append(metrics.relmse(img, mitsuba.mean, mitsuba.coverage))
+        if ref is not None:
+            ratio.append(img.mean() / ref.mean())
+            relmse.append(float(((img - ref) ** 2).mean() / (ref ** 2).mean()))
+            relmse_pixel.append(metrics.relmse(img, ref))
+    out = {"splat_ms": np.asarray(splat)}
+    if mitsuba is not None:
+        out.update(mitsuba_relmse=np.asarray(against_mitsuba),
+                   mitsuba_relmse_direct=metrics.relmse(np.zeros_like(mitsuba.mean), mitsuba.mean, mitsuba.coverage))
+    if ref is not None:
+        ratio = np.asarray(ratio)
+        out.update(ratio=ratio, relmse=np.asarray(relmse), relmse_pixel=np.asarray(relmse_pixel),
+                   relmse_pixel_black=metrics.relmse(np.zeros_like(ref), ref), ratio_mean=float(ratio.mean()),
+                   ratio_spread=float(ratio.std(ddof=1) / ratio.mean()) if len(ratio) > 1 else 0.0,
+                   reference_mean=float(ref.mean()), reference=ref)
+    return out

@@ -89,18 +89,28 @@ Corrections to the paper (details and derivations in `levels.py`):
   `analysis.count_vpls_reaching` measures the count on a scene (4x N_avg: 3.7-4.1x the VPLs on
   cornell_spot; the printed eq. 18 with the former defaults: 0.8x).
 
-Near field (`near_field = vpl_disc`, default): eq. 5 clamps d_i = max(eps, |x - y|) with eps a
-user parameter "to avoid singularities"; we take eps_k = max(eps_rel R_scene, sqrt(S_k / pi))
-for a level-k VPL, the radius of the disc of area S_k it stands for (its weight in eq. 10). A
-point VPL then never lights a receiver more than its whole hemisphere of emitters could
-(H S_k <= 1.5 rho_x B / pi for radiosity B: `test_near_field_clamp_removes_the_single_vpl_spikes`).
-It only acts on level 0 (a level-k VPL has f^k = 0 below D_{k-1}, and sqrt(S_k / pi) =
-2 D_near mu^(k/2) / sqrt(N_avg) < D_{k-1} for N_avg > 4 mu) and vanishes as N_avg grows
-(consistent); its bias is the missing light of a level-0 VPL closer than sqrt(S_0 / pi) to a
-receiver. Why: with the fixed eps (1e-4 R_scene, `near_field = paper_eps`) single level-0 VPLs of
-1.7 m^2 on sponza lit pixels a few cm away up to 1e5 times their radiosity: relmse.indirect
-against Mitsuba 2.09 (4 seeds, 320 x 180; `direct`: 0.76), 0.79 with the clamp; on the
-procedural scenes S_0 is small and the image means move by under 1% (the 8-seed table below).
+Near field (`near_field = disc_element`, default): eq. 5 clamps d_i = max(eps, |x - y|) with eps
+a user parameter "to avoid singularities". A level-k VPL stands for S_k of surface (its weight in
+eq. 10), so we give it the singularity of that surface rather than a point's: d_i^2 = |x - y|^2 +
+r_k^2 with r_k = sqrt(S_k / pi) the radius of the disc of area S_k, i.e. H S_k = L <n_x, xy>
+<n_t, yx> S_k / (pi |x - y|^2 + S_k), the form factor of a disc element (Bunnell, GPU Gems 2
+ch. 14, 2005; exact on the disc's axis, tested against the closed form in
+`test_flc_near_field.py`). It tends to the point VPL's S_k / (pi |x - y|^2) beyond a few r_k and
+never exceeds a whole hemisphere of radiosity B (H S_k <= 1.5 rho_x B / pi:
+`test_near_field_clamp_removes_the_single_vpl_spikes`); eps_rel R_scene stays a floor. Its bias
+is the light a VPL loses within a few r_k of a receiver; r_k^2 / D_{k-1}^2 = 4 mu / N_avg at the
+inner edge of a level k >= 1's support, and r_k -> 0 as N_avg grows (consistent). Other settings:
+`vpl_disc` clamps d_i >= max(eps, r_k) (the same bound at d <= r_k, the point's light beyond);
+`paper_eps` is eq. 5 as printed (eps only: unbiased for `manylights`' point sum, the setting of
+the unbiasedness tests). Why: sponza's sun lights a small share of its surface (the sun carries
+95% of the bounce), so a pixel's bounce rests on the few sunlit level-0 VPLs near it, and a
+sunlit VPL a little more than r_0 away brightens it many times over (the relMSE metric weighs
+such pixels most). Measured on sponza at 320 x 180, 16 seeds, relmse.indirect against Mitsuba
+mean / median / max (image mean over Mitsuba's): `paper_eps` 2.09 (4 seeds; single VPLs of
+1.7 m^2 lit pixels a few cm away up to 1e5 times their radiosity), `vpl_disc` 0.74 / 0.64 / 1.39
+(1.05), `disc_element` 0.50 / 0.41 / 1.15 (0.97); `direct`: 0.76. On the procedural scenes the
+image means move by under 1% (8-seed table below), on sibenik and conference the error falls
+(0.050 -> 0.044, 0.105 -> 0.098).
 
 Documented rules (a user setting always wins):
 - D_near (`dnear_rule = lit`, default): D_near = min(dnear_factor R_scene, sqrt(A_lit / (4 pi))),
@@ -157,57 +167,77 @@ image scores); against the Mitsuba unshadowed reference: relmse.indirect mean / 
 (`direct`'s):
 
     320 x 180         ml ratio (spread)  relMSE vs ml (black)  Mitsuba mean / max (direct)
-    cornell_spot      1.020 (3.3%)       0.0022 (0.815)        0.052 / 0.069 (0.843)
-    hidden_bounce     1.064 (6.9%)       0.0095 (0.941)        0.081 / 0.141 (0.953)
-    big_floor         0.996 (6.5%)       0.0056 (0.136)        0.047 / 0.051 (0.196)
-    rooms/main        1.030 (6.6%)       0.0086 (0.622)        0.017 / 0.028 (0.615)
-    rooms/far         1.022 (5.7%)       0.0034 (0.576)        0.058 / 0.080 (0.586)
-    sphere_inside     0.998 (3.7%)       0.0013 (0.990)        0.008 / 0.010 (0.990)
-    lit_wall_corner   1.012 (5.1%)       0.265  (0.335)        0.022 / 0.035 (0.506)
-    cornell_box       1.072 (2.5%)       0.297  (0.387)        0.029 / 0.032 (0.755)
-    sibenik           -                  -                     0.050 / 0.073 (0.974)
-    conference        -                  -                     0.105 / 0.168 (0.904)
-    sponza            -                  -                     0.826 / 1.223 (0.762)
-    128 x 96: cornell_spot 1.012 (3.4%), hidden_bounce 1.051 (6.9%), big_floor 0.987 (6.6%),
-    rooms/main 1.033 (6.6%), rooms/far 1.020 (5.6%), sphere_inside 0.998 (3.7%), lit_wall_corner
-    1.008 (5.1%), cornell_box 1.007 (2.5%); Mitsuba relmse.indirect below `direct`'s on each
-    (0.007 .. 0.094 against 0.227 .. 0.990).
+    cornell_spot      1.018 (3.3%)       0.0021 (0.815)        0.052 / 0.068 (0.843)
+    hidden_bounce     1.063 (6.9%)       0.0094 (0.941)        0.080 / 0.140 (0.953)
+    big_floor         0.990 (6.5%)       0.0055 (0.136)        0.047 / 0.051 (0.196)
+    rooms/main        1.022 (6.6%)       0.0081 (0.622)        0.017 / 0.029 (0.615)
+    rooms/far         1.021 (5.7%)       0.0034 (0.576)        0.058 / 0.080 (0.586)
+    sphere_inside     0.995 (3.7%)       0.0013 (0.990)        0.008 / 0.010 (0.990)
+    lit_wall_corner   0.996 (5.0%)       0.139  (0.335)        0.023 / 0.037 (0.506)
+    cornell_box       1.061 (2.5%)       0.227  (0.387)        0.030 / 0.033 (0.755)
+    sibenik           -                  -                     0.044 / 0.065 (0.974)
+    conference        -                  -                     0.098 / 0.158 (0.904)
+    sponza            -                  -                     0.518 / 0.805 (0.762)
+    128 x 96: cornell_spot 1.010 (3.4%), hidden_bounce 1.050 (6.9%), big_floor 0.981 (6.5%),
+    rooms/main 1.025 (6.7%), rooms/far 1.019 (5.6%), sphere_inside 0.996 (3.7%), lit_wall_corner
+    0.991 (5.0%), cornell_box 0.997 (2.5%); Mitsuba relmse.indirect below `direct`'s on each, in
+    every seed (mean 0.007 .. 0.094 against 0.227 .. 0.990).
 
 lit_wall_corner's and cornell_box's relMSE against `manylights` is the reference's own 1/d^2
 singularity (4 jittered VPLs per triangle, no near-field bound) at the corners. On the real
-scenes `manylights` sums 10^5 triangles at every pixel: at 128 x 72 with one jitter frame,
-sibenik 0.959 (5.6%); sponza and conference 1.24 and 1.31 (1.34 and 1.39 with
+scenes `manylights` sums 10^5 triangles at every pixel: at 128 x 72 with one jitter frame
+(measured with `near_field=vpl_disc`, the former default), sibenik 0.959 (5.6%); sponza and
+conference 1.24 and 1.31 (1.34 and 1.39 with
 `near_field=paper_eps`, which is unbiased for it: 64 x 36, 2 reference seeds), so the
 one-frame `manylights` image itself is the low outlier there (a heavy-tailed 1/d^2 sum whose
 typical frame lies under its mean). Through Mitsuba instead (FLC / Mitsuba over the flc-lobe
 sum / the Lambertian sum, `manylights` with both lobes and the same VPLs: 0.94 on sponza, 1.10
-on conference): sponza 1.078 / 0.94 = 1.15, conference 1.08 / 1.10 = 0.98 (4 seeds, 320 x 180;
-per-seed spread 16% and 12%).
-Known failure, sponza: relmse.indirect 0.83 against `direct`'s 0.76 (4 seeds at n_avg 256:
-0.50, at 512: 0.47; 2.09 with `near_field=paper_eps`). Two causes, measured: the flc lobe (the
-error map's structure is the lobe's: arch undersides above the sunlit floor, which the lobe
-lights 1.5x Lambert along the normal, too bright; pillar feet lit at grazing angles too dark),
-and the variance of the sun's bounce at N_avg 128 (image mean 0.85 to 1.30 of Mitsuba's across
-seeds, 16%: the top level's 6.8 m^2 VPLs carry the far field).
+on conference): sponza 0.998 / 0.94 = 1.06, conference 1.037 / 1.10 = 0.94 (8 seeds, 320 x 180;
+per-seed spread 14% and 10%); sibenik's FLC / Mitsuba is 1.005 (5.6%).
+Sponza is the hard scene: its sun carries 95% of the bounce from a small sunlit share of the
+surface, so one frame's bounce rests on a few sunlit VPLs. relmse.indirect over 16 seeds: mean
+0.50, median 0.41, max 1.15 (`direct`: 0.76; the table's 8 seeds: 0.52). The worst frames are
+Alg. 1's own variance, not a defect: on the worst seed found (seed 8 at n_avg 256, relmse 2.45),
+one sunlit ledge triangle (0.41 m^2, radiosity 5.3, at the ground-floor arcade) drawn into the top
+level weighs S_1 = 3.4 m^2, 8x its area, and carries 41% of the light of the pixels more than 4x
+too bright (found by zeroing the albedo of halves of the triangles, same seed).
 
-N_avg sweep (`python -m methods.flc.study --n-avg 64,128,256,512,1024 --seeds 4`, 320 x 180),
-Mitsuba relmse.indirect mean over 4 seeds and FLC's own time (log-log slope against N_avg):
-cornell_spot 0.055 0.053 0.052 0.053 0.049 (slope 0.70), hidden_bounce 0.122 0.089 0.044 0.040
-0.037 (0.49), big_floor 0.046 0.047 0.046 0.045 0.046 (0.39), rooms/main 0.022 0.015 0.017 0.014
-0.014 (0.71), rooms/far 0.050 0.053 0.060 0.063 0.059 (0.68), sphere_inside 0.0083 0.0075 0.0066
-0.0068 0.0069 (0.75), lit_wall_corner 0.023 0.020 0.016 0.016 0.015 (0.65), cornell_box 0.038
-0.029 0.027 0.024 0.025 (0.93), sibenik 0.063 0.052 0.038 0.035 0.029 (0.70). Against Mitsuba
-the error stops falling where a bias floor is reached (the flc lobe, eq. 6, and no indirect
-shadows: rooms/far looks through a door), not noise: against jittered `manylights` with the flc
-lobe it falls with N_avg (test_n_avg_sweep_lowers_the_error). The slope is under 1 because
-the selection, deinterleave and blur passes are fixed costs.
+N_avg sweep (`python -m methods.flc.study --n-avg 64,128,256,512,1024 --seeds 4 --jitter-frames 4`,
+320 x 180), Mitsuba relmse.indirect mean over 4 seeds at N_avg 64 .. 1024 and the log-log slope
+of FLC's own time against N_avg: cornell_spot 0.055 0.052 0.052 0.053 0.049 (slope 0.60),
+hidden_bounce 0.121 0.089 0.044 0.040 0.037 (0.44), big_floor 0.046 0.047 0.046 0.045 0.046
+(0.63), rooms/main 0.023 0.015 0.018 0.014 0.014 (0.63), rooms/far 0.050 0.053 0.060 0.063
+0.059 (0.63), sphere_inside 0.0084 0.0076 0.0066 0.0068 0.0069 (0.77), lit_wall_corner 0.024
+0.020 0.017 0.016 0.015 (0.54), cornell_box 0.039 0.030 0.028 0.024 0.025 (0.83), sibenik 0.058
+0.045 0.034 0.032 0.028 (0.75), conference 0.364 0.107 0.088 0.055 0.062 (0.77), sponza 0.723
+0.490 0.360 0.319 0.218 (0.72). On the real scenes the error falls with N_avg (conference's last
+step is within its seed spread); on the small scenes it stops falling at a bias floor (the flc
+lobe, eq. 6, and no indirect shadows: rooms/far looks through a door), not at noise. Against the
+sum FLC estimates (jittered `manylights` with the flc lobe, 64 jitter frames, 8 seeds, 128 x 96,
+`--res 128x96 --seeds 8 --jitter-frames 64`), per-pixel relMSE: cornell_spot 0.0081 0.0018
+0.0005 0.0008 0.0001, hidden_bounce 0.022 0.0081 0.0010 0.0011 0.0016, big_floor 0.0042 0.0039
+0.0035 0.0035 0.0033, rooms/main 0.015 0.0081 0.0020 0.0029 0.0015, rooms/far 0.014 0.0036
+0.0005 0.0012 0.0005, sphere_inside 0.0009 0.0013 0.0003 0.0000 0.0002: it falls by 4 to 30x
+from 64 to 1024, with a step up at 512 where a scene's triangles cross the divergent threshold
+(rooms: 0 -> 2596 divergent triangles, hidden_bounce 0 -> 4354; same without tiling and blur).
+It is single-frame variance, not bias: 64 progressive sub-frames are as close to `manylights` at
+512 as at 256 (rooms 0.00079 and 0.00088), and the image mean stays unbiased (hidden_bounce 0.999
+of `manylights` at n_avg 512 and 1024 with every triangle divergent). A triangle just over
+S_bar_N is cut by the smallest uniform tessellation level whose pieces are regular, into pieces
+far smaller than S_0, each kept with a low probability, so its variance barely falls where the
+regular triangles' halves. The
+time slope is under 1 because the selection, deinterleave and blur passes are fixed costs.
+`gibench sweep --methods flc` renders the same n_avg values (one seed per point) into the
+report's time-vs-error plot.
 
 Frame time at 320 x 180 over `direct`'s (`gibench run --scenes highpoly_1m,sponza,conference
 --methods direct,flc,dss --res 320x180 --defaults-only --no-reference --force`, idle machine,
 shared passes measured once per view and added to every row): highpoly_1m 1.18, sponza 1.39,
 conference 1.35 (FLC's own stages regular / divergent / upscale_blur: 29 / 29 / 11, 9 / 14 /
 10, 21 / 30 / 12 ms; the shared GBuffer and shadow maps 396, 83, 155 ms); `dss` / `flc` 48,
-7.3, 12.8.
+7.3, 12.8 (measured with `near_field=vpl_disc`; the disc element adds one multiply-add per splat
+fragment: frame / `direct` 1.20, 1.14, 1.21 against 1.18, 1.17, 1.17 for `vpl_disc` in one
+interleaved run of `harness.run_method`, 3 x 4 frames each, machine under load).
 
 | parameter             | default    | range        | meaning                                                     |
 |-----------------------|------------|--------------|-------------------------------------------------------------|
@@ -218,7 +248,7 @@ conference 1.35 (FLC's own stages regular / divergent / upscale_blur: 29 / 29 / 
 | dnear_factor          | 0.2        | 1e-3 .. 10   | D_near / R_scene (eq. 1), bounded by the D_near rule        |
 | dnear_rule            | lit        | lit, view, scene | D_near: min(dnear_factor R_scene, sqrt(A_lit / 4 pi)); dnear_factor min(R_scene, median view distance); dnear_factor R_scene (paper) |
 | eps_rel               | 1e-4       | 1e-7 .. 1    | eps of d_i = max(eps, |x - y|), relative to R_scene         |
-| near_field            | vpl_disc   | vpl_disc, paper_eps | eps_k = max(eps, sqrt(S_k / pi)) (the VPL's disc), or eps only |
+| near_field            | disc_element | disc_element, vpl_disc, paper_eps | d_i^2 = \|x - y\|^2 + S_k / pi (a disc element's form factor), max(sqrt(S_k / pi), \|x - y\|)^2, or eq. 5's max(eps, \|x - y\|)^2 |
 | regular_selection     | compute    | compute, single_draw | compute pass selects the drawn triangles (same image), or one draw of all |
 | tiling_level          | -1         | -1 .. 5      | L: 4^L interleaved tiles; -1: the tiling rule above         |
 | blur_radius           | -1         | -1 .. 32     | tent blur radius r in pixels; -1: 2^L - 1; 0: off           |
@@ -242,11 +272,8 @@ Stages: `regular`, `divergent`, `upscale_blur` (after the shared `gbuffer_shadow
 `divergent_triangles`, `divergent_patch_vertices` (the buffer's size: the sub-patches a light
 can reach are drawn).
 
-Stress limit params:progressive_frames=4096: 4096 sub-frames averaged in one render by design (the
-converged estimate); minutes per frame on llvmpipe, over the stress suite's timeout.
-Stress limit params:dnear_factor=0.001: D_near of 1e-3 R_scene makes S_0 ~1e6 times smaller, so
-nearly every triangle is divergent and tessellated into millions of VPLs (the paper's D_near is
-0.2 R_scene); the row exceeds the stress suite's timeout.
+Stress limit params:progressive_frames=4096: 4096 sub-frames averaged in one render by design (the converged estimate); minutes per frame on llvmpipe, over the stress suite's timeout.
+Stress limit params:dnear_factor=0.001: D_near of 1e-3 R_scene makes S_0 ~1e6 times smaller, so nearly every triangle is divergent and tessellated into millions of VPLs (the paper's D_near is 0.2 R_scene); the row exceeds the stress suite's timeout.
 Stress limit coplanar: coincident coplanar faces are two emitting triangles in eq. 4's sum over triangles (the paper's formulation) while Mitsuba's rays see one surface: the overlapped area emits twice (cornell_box 64x48: mean +6.3%).
 Stress limit flipped: a flipped winding reorders a divergent triangle's barycentric frame, so Alg. 2's keys of its tessellated pieces (noise at barycentric coordinates, Fig. 8) draw another random realisation: the same expectation, other noise (big_floor 64x48: indirect change 0.0865 against a seed-pair tolerance of 0.0853).
 """
@@ -297,7 +324,7 @@ MIN_TILE_PIXELS = 64 * 48
 
 
 DNEAR_RULES = ("lit", "view", "scene")
-NEAR_FIELDS = ("vpl_disc", "paper_eps")
+NEAR_FIELDS = ("paper_eps", "vpl_disc", "disc_element")   # index = FLC_NEAR_MODE in vpl_splat.glsl
 LIT_PIECES_PER_DNEAR = 16   # lit-area measurement: pieces of at most (D_near / 16)^2
 
 
@@ -370,9 +397,10 @@ class ForwardLightCuts(MethodBase):
                                    "(and the divergent ones) and the draw carries only those (same image); "
                                    "single_draw = the paper's one draw of the whole scene through the geometry shader",
                                    choices=REGULAR_SELECTIONS),
-        "near_field": Param("vpl_disc", "d_i = max(eps, |x - y|) with eps = max(eps_rel R_scene, sqrt(S_k / pi)): a "
-                            "VPL never lights a receiver more than the disc of area S_k it stands for (vpl_disc), "
-                            "or eps_rel R_scene only (paper_eps)", choices=NEAR_FIELDS),
+        "near_field": Param("disc_element", "d_i^2 of eq. 5 for a level-k VPL, r_k = sqrt(S_k / pi) the radius of the "
+                            "disc of area S_k it stands for: |x - y|^2 + r_k^2, the disc element's form factor "
+                            "(disc_element); max(r_k, |x - y|)^2 (vpl_disc); max(eps, |x - y|)^2 only (paper_eps); "
+                            "d_i >= eps_rel R_scene in all three", choices=NEAR_FIELDS),
         "eps_rel": Param(1e-4, "eps of d_i = max(eps, |x - y|), relative to the scene radius", 1e-7, 1.0),
         "tiling_level": Param(-1, "L: the viewport is split into 4^L interleaved tiles (-1: from the resolution, "
                               "tiles of at least 64 x 48 px each)", -1, 5),
@@ -431,7 +459,7 @@ class ForwardLightCuts(MethodBase):
                        DIVERGENT_CAPACITY=max(capacity, 1), TESS_MAX_LEVEL=MAX_TESS_LEVEL,
                        TESS_FMAX_SUB=float(fmax[TESS_SUB_LEVEL - 1]), TESS_TARGET_AREA=float(self.tess_target),
                        TESS_FMAX="float[%d](%s)" % (len(fmax), ", ".join(repr(float(v)) for v in fmax)),
-                       NOISE_SIZE=NOISE_SIZE, FLC_NEAR_DISC=params["near_field"] == "vpl_disc")
+                       NOISE_SIZE=NOISE_SIZE, FLC_NEAR_MODE=NEAR_FIELDS.index(params["near_field"]))
         self.selected = params["regular_selection"] == "compute"
         defines["REGULAR_SELECTED"] = self.selected
         self.regular = load_program(ctx, SHADERS / "splat_regular.glsl", defines)
@@ -557,8 +585,7 @@ class ForwardLightCuts(MethodBase):
                     self._select(frame.gpu, frame.random_u32(STREAM_LEVEL + j))
                 self._splat_state()
                 self._bind_splat(self.regular, frame, j)
-                if self.selected:
-                    self.kept_triangles.bind_to_storage_buffer(BINDINGS["BINDING_KEPT_TRIANGLES"])
+                if self.selected:   # kept_triangles stays bound from _select
                     self.regular_vao.render_indirect(self.select_command, mode=moderngl.TRIANGLES, count=1)
                 else:
                     self.regular_vao.render(moderngl.TRIANGLES)

@@ -12,8 +12,9 @@ Per scene[:view], one FLC frame per seed (0 .. seeds-1) at the defaults (or `--p
 - against the Mitsuba unshadowed one-bounce reference (cached; rendered on a miss): relmse.indirect
   mean and max over the seeds and `direct`'s;
 - FLC's own stages (regular + divergent + upscale_blur), median over the seeds, ms.
-With `--n-avg 64,128,...` it sweeps N_avg instead and prints, per scene, the Mitsuba error at each
-value (mean over the seeds) and FLC's own time with its log-log slope against N_avg.
+With `--n-avg 64,128,...` it sweeps N_avg instead and prints, per scene, at each value the Mitsuba
+error and the relMSE against jittered `manylights` (mean over the seeds; the latter skipped with
+`--jitter-frames 0`), FLC's own time and its log-log slope against N_avg.
 """
 from __future__ import annotations
 
@@ -28,7 +29,7 @@ from bench.gl.context import create_context
 from bench.harness import run_method
 from bench.scene import compute_facts
 
-from .analysis import refined_scene
+from .analysis import refined_scene, single_frame_study
 from .method import ForwardLightCuts
 
 OWN_STAGES = ForwardLightCuts.stages
@@ -48,54 +49,69 @@ def _mitsuba(scene, view, width, height):
 
 
 def study_view(ctx, name: str, view: str, width: int, height: int, seeds, params: dict, jitter_frames: int) -> dict:
-    """The figures of one view (see the module docstring)."""
-    from methods.manylights.method import ManyLights
+    """The figures of one view (see the module docstring), from `analysis.single_frame_study`."""
     scene = load_scene(name)
-    facts = compute_facts(scene)
-    out: dict = {"scene": name, "view": view}
-    images, own = [], []
-    for s in seeds:
-        r = run_method(ctx, ForwardLightCuts, scene, view, width, height, params, seed=s, frames=1, facts=facts)
-        images.append(r.indirect.astype(np.float64))
-        own.append(_own_ms(r))
-    out["own_ms"] = float(np.median(own))
-    if jitter_frames > 0:
-        ref_scene = refined_scene(scene, 0.5) if name == "big_floor" else scene
-        ml = run_method(ctx, ManyLights, ref_scene, view, width, height,
-                        {"emission": "flc", "jitter_frames": jitter_frames}, seed=99, frames=1,
-                        facts=compute_facts(ref_scene)).indirect.astype(np.float64)
-        ratio = np.array([img.mean() / ml.mean() for img in images])
-        out.update(ml_ratio=float(ratio.mean()),
-                   ml_spread=float(ratio.std(ddof=1) / ratio.mean()) if len(ratio) > 1 else 0.0,
-                   ml_relmse=float(np.mean([metrics.relmse(img, ml) for img in images])),
-                   ml_relmse_black=metrics.relmse(np.zeros_like(ml), ml))
-    ref = _mitsuba(scene, view, width, height)
-    if ref is not None:
-        errors = [metrics.relmse(img, ref.mean, ref.coverage) for img in images]
-        out.update(mitsuba_relmse=float(np.mean(errors)), mitsuba_relmse_max=float(np.max(errors)),
-                   mitsuba_relmse_direct=metrics.relmse(np.zeros_like(ref.mean), ref.mean, ref.coverage))
+    study = single_frame_study(ctx, scene, view, width, height, seeds, params, jitter_frames=jitter_frames,
+                               reference_scene=_reference_scene(scene, name),
+                               mitsuba=_mitsuba(scene, view, width, height))
+    out: dict = {"scene": name, "view": view, "own_ms": float(np.median(study["splat_ms"]))}
+    if "ratio" in study:
+        out.update(ml_ratio=study["ratio_mean"], ml_spread=study["ratio_spread"],
+                   ml_relmse=float(study["relmse_pixel"].mean()), ml_relmse_black=study["relmse_pixel_black"])
+    if "mitsuba_relmse" in study:
+        out.update(mitsuba_relmse=float(study["mitsuba_relmse"].mean()),
+                   mitsuba_relmse_max=float(study["mitsuba_relmse"].max()),
+                   mitsuba_relmse_direct=study["mitsuba_relmse_direct"])
     return out
 
 
-def sweep_view(ctx, name: str, view: str, width: int, height: int, seeds, params: dict, n_avgs) -> dict:
-    """Mitsuba relmse.indirect (mean over seeds) and FLC's own time at each N_avg, and the slope."""
+def _reference_scene(scene, name: str):
+    """big_floor's 80 m floor is 2 triangles: `manylights` (one VPL per triangle) runs on it cut finer."""
+    return refined_scene(scene, 0.5) if name == "big_floor" else scene
+
+
+def _manylights(ctx, scene, name: str, view: str, width: int, height: int, jitter_frames: int) -> np.ndarray:
+    """Jittered `manylights` with the flc lobe: the sum FLC estimates (big_floor's on its refined scene)."""
+    from methods.manylights.method import ManyLights
+    ref_scene = _reference_scene(scene, name)
+    return run_method(ctx, ManyLights, ref_scene, view, width, height,
+                      {"emission": "flc", "jitter_frames": jitter_frames}, seed=99, frames=1,
+                      facts=compute_facts(ref_scene)).indirect.astype(np.float64)
+
+
+def _falls(errors) -> bool:
+    return all(a > b for a, b in zip(errors, errors[1:]))
+
+
+def sweep_view(ctx, name: str, view: str, width: int, height: int, seeds, params: dict, n_avgs,
+               jitter_frames: int = 0) -> dict:
+    """At each N_avg: Mitsuba relmse.indirect (mean over seeds), the per-pixel relMSE against jittered
+    `manylights` with the flc lobe (the sum FLC estimates; with `jitter_frames` > 0), FLC's own time,
+    and the time's log-log slope against N_avg."""
     scene = load_scene(name)
     facts = compute_facts(scene)
     ref = _mitsuba(scene, view, width, height)
-    errors, times = [], []
+    ml = _manylights(ctx, scene, name, view, width, height, jitter_frames) if jitter_frames > 0 else None
+    errors, ml_errors, times = [], [], []
     for n in n_avgs:
-        e, t = [], []
+        e, m, t = [], [], []
         for s in seeds:
             r = run_method(ctx, ForwardLightCuts, scene, view, width, height, dict(params, n_avg=n), seed=s,
                            frames=1, facts=facts)
             if ref is not None:
                 e.append(metrics.relmse(r.indirect, ref.mean, ref.coverage))
+            if ml is not None:
+                m.append(metrics.relmse(r.indirect, ml))
             t.append(_own_ms(r))
         errors.append(float(np.mean(e)) if e else float("nan"))
+        ml_errors.append(float(np.mean(m)) if m else float("nan"))
         times.append(float(np.median(t)))
     slope = float(np.polyfit(np.log(n_avgs), np.log(times), 1)[0])
-    return {"scene": name, "view": view, "n_avg": list(n_avgs), "mitsuba_relmse": errors, "own_ms": times,
-            "time_slope": slope, "error_falls_every_step": all(a > b for a, b in zip(errors, errors[1:]))}
+    out = {"scene": name, "view": view, "n_avg": list(n_avgs), "mitsuba_relmse": errors, "own_ms": times,
+           "time_slope": slope, "error_falls_every_step": _falls(errors)}
+    if ml is not None:
+        out.update(ml_relmse=ml_errors, ml_error_falls_every_step=_falls(ml_errors))
+    return out
 
 
 def main(argv=None) -> None:
@@ -121,7 +137,8 @@ def main(argv=None) -> None:
         name, _, view = item.partition(":")
         view = view or "main"
         if args.n_avg:
-            row = sweep_view(ctx, name, view, width, height, seeds, params, [int(v) for v in args.n_avg.split(",")])
+            row = sweep_view(ctx, name, view, width, height, seeds, params, [int(v) for v in args.n_avg.split(",")],
+                             args.jitter_frames)
         else:
             row = study_view(ctx, name, view, width, height, seeds, params, args.jitter_frames)
         print(json.dumps(row), flush=True)

@@ -45,8 +45,7 @@ Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_cou
 triangle draws (sponza at 64 VPLs: 4.2M, ~2 s per frame on llvmpipe); a row above
 `max_triangle_draws` (default 1e7) is skipped with that figure rather than run for minutes.
 
-Stress limit params:shadow_resolution=512: 256 VPLs x 5 hemicube faces of 512^2 need an atlas
-larger than GL_MAX_TEXTURE_SIZE; prepare() refuses it with one line naming both parameters.
+Stress limit params:shadow_resolution=512: 256 VPLs x 5 hemicube faces of 512^2 need an 18432^2 atlas, larger than GL_MAX_TEXTURE_SIZE (16384 on llvmpipe); prepare() refuses it with one line naming both parameters.
 """
 from __future__ import annotations
 

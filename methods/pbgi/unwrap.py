@@ -2,7 +2,9 @@
 
 The article projects every face on the dominant axis of its normal and packs the small
 charts into one texture. Here a chart is a connected set of triangles (sharing a welded edge)
-with the same dominant axis and sign: locally a height field over that axis plane (planar
+with the same dominant axis and sign (two |normal| components within AXIS_TIE are a tie, which
+the lower axis takes: a 45-degree face must not change its axis with the rounding of the
+scene's unit): locally a height field over that axis plane (planar
 walls become one chart, a sphere six caps). A patch can still fold over itself globally (a
 helical ramp); the method detects that on the GL and passes such charts back in `split`.
 Two triangles of a key also join when an unshared edge of one runs along an unshared edge of
@@ -47,6 +49,7 @@ END_MARGIN = 0.01    # at least this many texels between the chart's extent and 
 COLLINEAR_COSINE = 1e-6  # two edges from a vertex run along each other when 1 - cos is below this
 SECTOR_OVERLAP_RAD = 1e-4   # ... and their triangles meet side by side when their angles there overlap by at most this
 ROTATED_BOX_GAIN = 0.5   # a chart's box follows its principal axes when that at least halves its area
+AXIS_TIE = 1e-9         # |normal| components this close count as equal (the lowest axis wins)
 
 
 class LightmapTooSmall(ValueError):
@@ -106,6 +109,13 @@ def _disjoint_sectors(vertices, faces, normal, first, second) -> np.ndarray:
     return overlap <= SECTOR_OVERLAP_RAD
 
 
+def dominant_axis(normal: np.ndarray) -> np.ndarray:
+    """Index of each row's largest |component|; components within AXIS_TIE of the largest tie
+    and the lowest index wins, so a 45-degree face keeps its axis under rounding noise."""
+    mag = np.abs(normal)
+    return np.argmax(mag >= mag.max(axis=1, keepdims=True) - AXIS_TIE, axis=1)
+
+
 def find_charts(vertices: np.ndarray, faces: np.ndarray, tolerance: float, split=(), shading_normals=None):
     """Chart id per triangle, chart axis, face normals and areas. Charts listed in `split`
     (ids of an earlier call with the same arguments) become one chart per triangle. With
@@ -119,7 +129,7 @@ def find_charts(vertices: np.ndarray, faces: np.ndarray, tolerance: float, split
         sn = np.asarray(shading_normals, dtype=np.float64)
         corner_sum = sn[faces[:, 0]] + sn[faces[:, 1]] + sn[faces[:, 2]]
         normal[np.einsum("ij,ij->i", normal, corner_sum) < 0] *= -1.0
-    axis = np.argmax(np.abs(normal), axis=1)
+    axis = dominant_axis(normal)
     key = axis * 2 + (normal[np.arange(len(faces)), axis] >= 0)
     wid = _weld(vertices, tolerance)[faces]                       # (T, 3) welded vertex ids
     edges = np.concatenate([wid[:, [0, 1]], wid[:, [1, 2]], wid[:, [2, 0]]])

@@ -142,8 +142,7 @@ bytes (16 MiB at most: triangles are processed in chunks); a combination over 1 
 shadow_resolution that is not a power of two is refused in prepare() with an error naming the
 parameters.
 
-Stress limit params:vpl_count=1: fewer VPLs than `cluster_count` (30) cannot be clustered into
-that many VALs; prepare() refuses it with one line naming both parameters.
+Stress limit params:vpl_count=1: fewer VPLs than `cluster_count` (30) cannot be clustered into that many VALs; prepare() refuses it with one line naming both parameters.
 """
 from __future__ import annotations
 

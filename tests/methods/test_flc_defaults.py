@@ -77,8 +77,9 @@ def test_single_frame_study_and_refined_reference(gl_ctx):
 
 
 def test_near_field_clamp_removes_the_single_vpl_spikes(gl_ctx):
-    """A VPL of level k stands for S_k of surface: by default d_i >= sqrt(S_k / pi) (the radius
-    of that disc), so no VPL lights a receiver more than its whole hemisphere of emitters could.
+    """A VPL of level k stands for S_k of surface: by default d_i^2 = |x - y|^2 + S_k / pi (the
+    form factor of that disc, `disc_element`; `vpl_disc`: d_i >= sqrt(S_k / pi), its radius), so
+    no VPL lights a receiver more than its whole hemisphere of emitters could.
     On lit_wall_corner (wall radiosity at most B = rho_wall E, floor lit only by the wall) the
     converged flc-lobe bounce is at most 1.5 rho_x B / pi (the lobe's peak over Lambert's, times
     a full hemisphere); with the paper's fixed eps alone a wall VPL a few mm from a floor pixel
@@ -93,6 +94,7 @@ def test_near_field_clamp_removes_the_single_vpl_spikes(gl_ctx):
         return max(float((img[g["mask"]] / bound).max())
                    for img in frames(gl_ctx, scene, facts, {"near_field": near_field}))
 
+    assert worst(ForwardLightCuts.params["near_field"].default) <= 1.0
     assert worst("vpl_disc") <= 1.0
     assert worst("paper_eps") > 1.5
 

@@ -15,7 +15,7 @@ uniform uint u_rand_tile;      // independent stream: the interleaved-sampling t
 uniform uint u_rand_jitter;    // independent stream: the VPL position (same as `manylights`)
 uniform bool u_jitter;         // progressive mode: VPL jittered uniformly over its triangle
 uniform float u_weight;        // 4^L tiles / progressive frames
-uniform float u_eps;           // d_i = max(eps, |x - y|) in H
+uniform float u_eps;           // d_i >= eps in H (eq. 5)
 
 // Divergent triangles, appended by the regular pass as patches of 3 vertices each (pre-split
 // into m^2 equal sub-patches when even the top tessellation level would leave divergent pieces).
@@ -104,7 +104,7 @@ flat out vec3 g_front;      // rho E on the side +ns (ns oriented into n's hemis
 flat out vec3 g_back;       // rho E on the side -ns
 flat out float g_weight;    // S_k * tiles / frames
 flat out int g_level;
-flat out float g_dmin;      // d_i = max(g_dmin, |x - y|): eps, or the radius of the VPL's disc of area S_k
+flat out float g_rdisc;     // radius of the disc of area S_k the VPL stands for (0 with FLC_NEAR_MODE 0)
 
 // Alg. 1 + eq. 6 + splat. `key` is the (sub-)triangle's xor of per-vertex random values (Alg. 2,
 // without u_rand), y the VPL centre, ns_raw the shading normal interpolated at y.
@@ -172,10 +172,10 @@ void flc_splat_triangle(vec3 a, vec3 b, vec3 c, float area, uint key, uint tri, 
         g_back = back;
         g_weight = flc_s[level] * u_weight;
         g_level = level;
-#if FLC_NEAR_DISC
-        g_dmin = max(u_eps, sqrt(flc_s[level] * INV_PI));
+#if FLC_NEAR_MODE > 0
+        g_rdisc = sqrt(flc_s[level] * INV_PI);
 #else
-        g_dmin = u_eps;
+        g_rdisc = 0.0;
 #endif
         gl_Position = vec4(corners[v], 0.0, 1.0);
         EmitVertex();
@@ -193,7 +193,7 @@ flat in vec3 g_front;
 flat in vec3 g_back;
 flat in float g_weight;
 flat in int g_level;
-flat in float g_dmin;
+flat in float g_rdisc;
 layout(location = 0) out vec4 out_sum;
 void main() {
     uvec4 receiver = texelFetch(u_receivers, ivec2(gl_FragCoord.xy), 0);
@@ -213,9 +213,16 @@ void main() {
     // the side of the shading normal x is on picks the radiosity (Mitsuba's twosided diffuse, as
     // `manylights`); the geometric term's cosine is against the face normal
     vec3 radiosity = dot(g_ns, w) < 0.0 ? g_front : g_back;
-    float dc = max(g_dmin, dist);
+    // d_i^2 of eq. 5 (near_field, method.py): |x - y|^2 + r^2, the disc element's form factor
+    // S / (pi d^2 + S) (FLC_NEAR_MODE 2); max(r, |x - y|)^2 (1); max(eps, |x - y|)^2 (0, the paper)
+#if FLC_NEAR_MODE == 2
+    float d2 = max(u_eps * u_eps, dist * dist + g_rdisc * g_rdisc);
+#else
+    float dc = max(max(u_eps, g_rdisc), dist);
+    float d2 = dc * dc;
+#endif
     // rho_t E 3/(2 pi) c (eq. 6) * cos_x c / d_i^2 (eq. 5 without rho_x / pi) * S_k f^k (eq. 10)
-    out_sum = vec4(radiosity * (1.5 * INV_PI * c * c * cos_x / (dc * dc) * f * g_weight), 0.0);
+    out_sum = vec4(radiosity * (1.5 * INV_PI * c * c * cos_x / d2 * f * g_weight), 0.0);
 }
 #endif
 
