@@ -34,7 +34,13 @@ int shadow_layer_for(int i, vec3 p) {
 }
 
 // Fraction of light i reaching p (0 or 1), p offset along the geometric normal n_geo (facing the
-// light) by a texel footprint to avoid self-shadowing acne.
+// light) by a texel footprint to avoid self-shadowing acne. The offset and the depth tolerance
+// erode every shadow by about their size, so they are kept at the least that shows no acne on the
+// corpus: a normal offset of (0.25 + 0.5 sin) texel and half a texel of depth. Measured against
+// the Mitsuba direct reference at 320 x 180 (512^2 shadow maps), relmse: sponza 17.0 -> 10.9
+// (image mean 1.154 -> 1.114 of Mitsuba's: the sun's shadow lines under the roof's overhang),
+// sibenik 0.50 -> 0.20, rooms 1.15 -> 0.36, cornell_box 1.94 -> 0.94; no pixel of the small
+// scenes dark where Mitsuba is lit (acne) with either (offsets were (0.5 + 1.5 sin), one texel).
 float shadow_visibility(int i, vec3 p, vec3 n_geo) {
     Light L = lights[i];
     vec3 wi; float dist;
@@ -45,7 +51,7 @@ float shadow_visibility(int i, vec3 p, vec3 n_geo) {
     vec3 n = dot(n_geo, wi) < 0.0 ? -n_geo : n_geo;
     float cos_l = clamp(dot(n, wi), 0.0, 1.0);
     float sin_l = sqrt(max(1.0 - cos_l * cos_l, 0.0));
-    vec3 q = p + n * texel * (0.5 + 1.5 * sin_l);
+    vec3 q = p + n * texel * (0.25 + 0.5 * sin_l);
     layer = shadow_layer_for(i, q);
     S = shadow_layers[layer];
     vec4 clip = S.view_proj * vec4(q, 1.0);
@@ -54,7 +60,7 @@ float shadow_visibility(int i, vec3 p, vec3 n_geo) {
     ivec2 tile = ivec2(layer % u_shadow_tiles_x, layer / u_shadow_tiles_x);
     ivec2 texel_xy = clamp(ivec2((ndc.xy * 0.5 + 0.5) * float(u_shadow_resolution)), ivec2(0), ivec2(u_shadow_resolution - 1));
     float stored = texelFetch(u_shadow_atlas, tile * u_shadow_resolution + texel_xy, 0).r;
-    return shadow_metric(i, q) <= stored + texel ? 1.0 : 0.0;
+    return shadow_metric(i, q) <= stored + 0.5 * texel ? 1.0 : 0.0;
 }
 
 #endif
