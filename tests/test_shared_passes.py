@@ -20,6 +20,19 @@ def private_cache(tmp_path, monkeypatch):
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
 
 
+def count_shared_renders(monkeypatch) -> dict:
+    """{'n': how many times SharedPasses.render has run since}: the real render, counted."""
+    calls = {"n": 0}
+    real = SharedPasses.render
+
+    def counting(self, prof):
+        calls["n"] += 1
+        return real(self, prof)
+
+    monkeypatch.setattr(SharedPasses, "render", counting)
+    return calls
+
+
 def lend(ctx, gpu, needs, frames=2):
     passes = SharedPasses(gpu, gpu.view("main", W, H), needs, shadow_resolution=SHADOW)
     return measure_shared_passes(ctx, passes, warmup=1, frames=frames)
@@ -140,14 +153,7 @@ def test_lent_passes_are_not_rendered_again(gl_ctx, monkeypatch):
     scene = make_open_box()
     direct = load_method("direct")
     gpu = GpuScene(gl_ctx, scene)
-    calls = {"n": 0}
-    real = SharedPasses.render
-
-    def counting(self, prof):
-        calls["n"] += 1
-        return real(self, prof)
-
-    monkeypatch.setattr(SharedPasses, "render", counting)
+    calls = count_shared_renders(monkeypatch)
     try:
         shared = lend(gl_ctx, gpu, direct.needs, frames=2)
         assert calls["n"] == 3   # one warm-up + two timed frames
@@ -196,14 +202,7 @@ def test_runner_renders_each_views_shared_passes_once(tmp_path, monkeypatch):
     """Two methods, two rungs of one: one shared measurement for the view (warm-up + K frames),
     recorded in the manifest, whose medians every row adds to its own frame time."""
     from bench.runner import RunConfig, run
-    calls = {"n": 0}
-    real = SharedPasses.render
-
-    def counting(self, prof):
-        calls["n"] += 1
-        return real(self, prof)
-
-    monkeypatch.setattr(SharedPasses, "render", counting)
+    calls = count_shared_renders(monkeypatch)
     cfg = RunConfig(scenes=[make_open_box()], methods=["direct", "manylights"], width=32, height=24, frames=2,
                     warmup=1, out=tmp_path / "run", references=False, progress=False,
                     params={"manylights": [{}, {"emission": "flc"}]})

@@ -226,7 +226,7 @@ sum FLC estimates (jittered `manylights` with the flc lobe, 64 jitter frames, 8 
 from 64 to 1024, with a step up at 512 where a scene's triangles cross the divergent threshold
 (rooms: 0 -> 2596 divergent triangles, hidden_bounce 0 -> 4354; same without tiling and blur).
 It is single-frame variance, not bias: 64 progressive sub-frames are as close to `manylights` at
-512 as at 256 (rooms 0.00079 and 0.00088), and the image mean stays unbiased (hidden_bounce 0.999
+512 as at 256 (rooms, `near_field=vpl_disc`, no tiling or blur: 0.00079 and 0.00088), and the image mean stays unbiased (hidden_bounce 0.999
 of `manylights` at n_avg 512 and 1024 with every triangle divergent). A triangle just over
 S_bar_N is cut by the smallest uniform tessellation level whose pieces are regular, into pieces
 far smaller than S_0, each kept with a low probability, so its variance barely falls where the
