@@ -21,6 +21,7 @@ DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside",
 QUICK_SCENES = ("cornell_spot", "rooms", "sponza")
 REFERENCE_SPP = 1024        # reference spp cap of `run` and `sweep`
 QUICK_REFERENCE_SPP = 256   # --quick: a first report; the reference floor shows as wider intervals
+SHADOW_RESOLUTION_RANGE = (16, 8192)   # --shadow-resolution: one tile of the shared atlas (GL's 16384 limit)
 DEFAULT_RESOLUTION = (320, 180)   # the design point of the interleaved screen-space methods starts here
 DEFAULT_METHODS = ("direct", "ir_unshadowed", "ir_shadowed", "manylights", "flc", "ssdo", "dss", "val_clustered", "pbgi",
                    "visibility_gates")
@@ -36,6 +37,17 @@ def _resolution(text: str) -> tuple[int, int]:
         return int(w), int(h)
     except ValueError:
         raise argparse.ArgumentTypeError(f"resolution must be WxH, got {text!r}") from None
+
+
+def _shadow_resolution(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"shadow resolution must be an integer, got {text!r}") from None
+    if not SHADOW_RESOLUTION_RANGE[0] <= value <= SHADOW_RESOLUTION_RANGE[1]:
+        raise argparse.ArgumentTypeError(f"shadow resolution must be in {SHADOW_RESOLUTION_RANGE[0]}.."
+                                         f"{SHADOW_RESOLUTION_RANGE[1]}, got {value}")
+    return value
 
 
 def _parse_value(text: str):
@@ -108,7 +120,8 @@ def cmd_run(args) -> int:
                     references=not args.no_reference,
                     reference_spp_cap=args.reference_spp or (QUICK_REFERENCE_SPP if args.quick else REFERENCE_SPP),
                     progress=not args.no_progress, ladders=not args.defaults_only,
-                    timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers)
+                    timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers,
+                    shadow_resolution=args.shadow_resolution)
     df, runner = run(cfg, log=lambda m: print(m, file=sys.stderr))
     print(runner.summary())
     print(f"results: {runner.run_dir / 'results.csv'}")
@@ -181,7 +194,8 @@ def cmd_sweep(args) -> int:
         _csv(args.scenes), methods, log=lambda m: print(m, file=sys.stderr), width=width, height=height,
         frames=args.frames, warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None,
         force=args.force, views=_csv(args.views) if args.views else None, references=not args.no_reference,
-        reference_spp_cap=args.reference_spp or REFERENCE_SPP, progress=not args.no_progress)
+        reference_spp_cap=args.reference_spp or REFERENCE_SPP, progress=not args.no_progress,
+        shadow_resolution=args.shadow_resolution)
     print(runner.summary())
     print(f"{len(table)} sweep points, {len(pareto)} on the Pareto fronts")
     print(f"sweep: {runner.run_dir / 'sweep.csv'}")
@@ -257,6 +271,9 @@ def main(argv=None) -> int:
                             "method's MSE; a floor above that shows as wider intervals and lower-bound speed-ups). "
                             "4096 takes ~4x the reference time")
         p.add_argument("--no-progress", action="store_true")
+        p.add_argument("--shadow-resolution", type=_shadow_resolution, default=None, metavar="N",
+                       help="side of each light's shadow map tile (default: the smallest power of two >= the image's "
+                            "longer side, within 256..2048)")
     run.add_argument("--param", action="append", help="METHOD.NAME=VALUE[,VALUE...] (repeatable; lists make a grid)")
     run.add_argument("--timing-budget", type=float, default=None, metavar="SECONDS",
                      help="calibrated timing: after --frames frames, time more until the median's 95%% interval is "

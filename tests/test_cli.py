@@ -118,3 +118,33 @@ def test_reference_cap_of_run_and_quick(monkeypatch, extra, expected):
     with pytest.raises(Stop):
         cli.main(["run", "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
     assert seen["cap"] == expected
+
+
+@pytest.mark.parametrize("command", ["run", "sweep"])
+def test_shadow_resolution_reaches_the_run_config(monkeypatch, command):
+    """--shadow-resolution sets the shared shadow maps' tile side of `run` and `sweep`; unset, the
+    runner sizes them from the image (RunConfig.shadow_resolution None)."""
+    import bench.cli as cli
+    import bench.runner
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_run(cfg, log=None):
+        seen.append(cfg.shadow_resolution)
+        raise Stop
+    monkeypatch.setattr(bench.runner, "run", fake_run)
+    base = [command, "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"]
+    for extra in (["--shadow-resolution", "2048"], []):
+        with pytest.raises(Stop):
+            cli.main(base + extra)
+    assert seen == [2048, None]
+
+
+@pytest.mark.parametrize("value", ["0", "9000", "big"])
+def test_bad_shadow_resolution_is_one_line(capsys, value):
+    with pytest.raises(SystemExit):
+        main(["run", "--scenes", "cornell_spot", "--shadow-resolution", value])
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "shadow resolution" in err and value in err
