@@ -17,7 +17,9 @@ same order.
   event loop, which a GL call holding the GIL for longer than the lease timeout, 30 s, starves;
   the scheduler then expired the lease and let a second row of the host render beside it.)
 * Failures: a task that raises is a `failed` row (the method's error, as in a serial run); a
-  worker that dies loses only its task, which the scheduler retries (`retries=2`) elsewhere.
+  worker that dies loses only its task, which the scheduler retries (`retries=2`) elsewhere; a
+  task the scheduler drops instead (its future cancelled, "already forgotten", seen under load
+  when a worker is killed) is submitted again by the runner (`runner.RESUBMISSIONS`).
 * References: after the rows, every (scene, view, component) first pass is a task of its own
   (no timing lock: references may fill every core), rendered into the content-addressed reference
   cache (written atomically), which the client then reads. On a multi-host cluster the cache

@@ -30,6 +30,7 @@ Trust rules:
 """
 from __future__ import annotations
 
+import concurrent.futures
 import datetime as _dt
 import hashlib
 import json
@@ -51,6 +52,7 @@ from bench.scene import SceneError, compute_facts
 from bench.versioning import git_commit, harness_version, method_version
 
 IMAGE_COMPONENTS = ("direct", "indirect", "combined")
+RESUBMISSIONS = 2  # a Dask row whose task the cluster lost (not the row's own failure) is submitted again this often
 
 
 def cache_root() -> Path:
@@ -653,15 +655,24 @@ class Runner:
                     if progress is not None:
                         progress.update(1)
                     continue
-                fut = client.submit(dist.render_task, worker_cfg, scene_refs[scene_name], view, method,
-                                    planned["params"], retries=2, pure=False,
-                                    key=f"row-{planned['key']}-{i}")
-                futures[fut] = (i, planned)
-            for fut in as_completed(list(futures)):
-                i, planned = futures[fut]
+                def submit(scene_name=scene_name, view=view, method=method, planned=planned, i=i, attempt=0):
+                    return client.submit(dist.render_task, worker_cfg, scene_refs[scene_name], view, method,
+                                         planned["params"], retries=2, pure=False,
+                                         key=f"row-{planned['key']}-{i}" + (f"-again{attempt}" if attempt else ""))
+                futures[submit()] = (i, planned, submit, 0)
+            pending = as_completed(list(futures))
+            for fut in pending:
+                i, planned, submit, attempt = futures.pop(fut)
                 try:
                     outcome = fut.result()
-                except Exception as exc:  # the task's worker died more often than it was retried
+                except Exception as exc:  # the task's worker died more often than it was retried, or was dropped
+                    # a killed worker's task is retried by the scheduler (retries=2), but the scheduler can
+                    # also drop it, cancelled "for reason: already forgotten": submit that one again
+                    if isinstance(exc, concurrent.futures.CancelledError) and attempt < RESUBMISSIONS:
+                        again = submit(attempt=attempt + 1)
+                        futures[again] = (i, planned, submit, attempt + 1)
+                        pending.add(again)
+                        continue
                     reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
                     outcome = {"status": "failed", "reason": f"worker lost: {reason}"}
                 row = self._finish_row(planned, outcome)

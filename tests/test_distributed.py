@@ -148,3 +148,30 @@ def test_timing_lock_is_exclusive_and_freed_when_its_holder_is_killed(tmp_path):
     with pytest.raises(ValueError, match="timing lock"):
         with timing_lock(tmp_path / "no_such_folder" / "timing.lock"):
             pass
+
+
+def test_a_row_the_cluster_drops_is_submitted_again(tmp_path, monkeypatch):
+    """A task the scheduler forgets (its future cancelled, as after a killed worker: "cancelled for
+    reason: already forgotten") is submitted again: here every row's first task is cancelled on
+    submission and every row still ends ok."""
+    from bench import distributed as dist
+    opened = dist.open_client
+    cancelled = []
+
+    def open_dropping_client(scheduler=None, workers=None):
+        client, cluster = opened(scheduler, workers)
+        submit = client.submit
+
+        def submit_then_drop(*args, **kwargs):
+            fut = submit(*args, **kwargs)
+            if "-again" not in kwargs.get("key", ""):
+                client.cancel(fut)
+                cancelled.append(kwargs.get("key"))
+            return fut
+        client.submit = submit_then_drop
+        return client, cluster
+    monkeypatch.setattr(dist, "open_client", open_dropping_client)
+    df, runner = run(config(tmp_path, "dist", workers=1, scenes=[make_open_box()], methods=["direct", "ssdo"]),
+                     log=lambda m: None)
+    assert len(cancelled) == 2
+    assert list(df["status"]) == ["ok", "ok"], df[["method", "status"]]

@@ -256,7 +256,8 @@ class DirectPass:
 
 class ReflectiveShadowMap:
     """RSM of every light (layers as the shadow maps, lower resolution): position, normal
-    facing the light, reflected flux per texel. Unlit texels have flux 0 and position.w 0."""
+    facing the light, reflected flux per texel (rgb) and the texel's footprint on the surface in
+    m^2 (flux.a). Unlit texels have flux 0 and position.w 0."""
 
     def __init__(self, gpu: GpuScene, resolution: int = 128):
         ctx = gpu.ctx

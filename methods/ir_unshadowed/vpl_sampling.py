@@ -87,9 +87,11 @@ class RsmVplSampler:
         ctx.memory_barrier()
 
     def read_vpls(self) -> dict:
-        """The current VPLs as numpy arrays (tests, diagnostics): position, normal, flux (N x 3)."""
+        """The current VPLs as numpy arrays (tests, diagnostics): position, normal, flux (N x 3)
+        and area (N: the surface area each stands for)."""
         rec = np.frombuffer(self.vpls.read(), dtype=np.float32).reshape(self.vpl_count, 3, 4)
-        return {"position": rec[:, 0, :3].copy(), "normal": rec[:, 1, :3].copy(), "flux": rec[:, 2, :3].copy()}
+        return {"position": rec[:, 0, :3].copy(), "normal": rec[:, 1, :3].copy(), "flux": rec[:, 2, :3].copy(),
+                "area": rec[:, 0, 3].copy()}
 
     def bind(self) -> None:
         self.vpls.bind_to_storage_buffer(VPL_DEFINES["BINDING_VPLS"])

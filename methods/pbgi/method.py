@@ -177,6 +177,7 @@ Limits of the stress suite's parameter extremes (`gibench stress`, issue #12; ea
 article states, at the suite's 300 s case timeout on llvmpipe, 2 shared cores):
 Stress limit params:refine_ratio=0: every node refined to its texels is the article's all-pairs loop ("Of course this pass is really slow"), texels^2 transfers per bounce (52,600^2 = 2.8e9 on cornell_spot's 256^2 lightmap) through the stackless walk: over 300 s (gather=all_pairs, the same sum without the walk, finishes)
 Stress limit params:bounces=8: the untimed first frame converges bounces x W frames of the amortised gather (the article computes the gather "in more than one frame by sampling only a few emitters each time"), each bounce re-gathering its window: 8 x 26 = 208 frames of work on cornell_spot's 256^2 lightmap, over 300 s (hidden_bounce, 256^2 already with 20 texels/m, timed out before the density rule changed)
+Stress limit params:max_lightmap_resolution=1024: on a real scene the cap no longer binds, so the untimed first frame converges a window of 7x the texels: sibenik 291,941 texels and W = 143 frames (42,702 and 21 at the default 256), each frame's gather over 7x the receivers, ~50x the default's convergence work, over 300 s; the procedural scenes and cornell_box pass
 
 Quality ladder (`gibench run`), fast -> accurate:
   1. texel_density 72, max_lightmap_resolution 192, refine_ratio 0.5;

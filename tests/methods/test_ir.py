@@ -77,8 +77,9 @@ def segment_blocked(scene, x, y, eps=1e-4):
     return blocked
 
 
-def gather_numpy(g, vpls, eps, blocked=None):
-    """The gather formula over the read-back VPLs (optionally with a visibility mask)."""
+def gather_numpy(g, vpls, eps, blocked=None, near_disc=False):
+    """The gather formula over the read-back VPLs (optionally with a visibility mask; near_disc:
+    the squared distance is max(eps^2, d^2 + A / pi), A the area the VPL stands for)."""
     m = g["mask"]
     x, nx, rho = g["position"][m].astype(np.float64), g["normal"][m], g["albedo"][m]
     y, ny, flux = (vpls[k].astype(np.float64) for k in ("position", "normal", "flux"))
@@ -87,7 +88,10 @@ def gather_numpy(g, vpls, eps, blocked=None):
     w = d / dist[..., None]
     cos_x = np.maximum((nx[:, None] * w).sum(-1), 0)
     cos_y = np.maximum(-(ny[None] * w).sum(-1), 0)
-    g_term = cos_x * cos_y / np.maximum(eps, dist) ** 2
+    if near_disc:
+        g_term = cos_x * cos_y / np.maximum(eps ** 2, dist ** 2 + vpls["area"].astype(np.float64)[None] / np.pi)
+    else:
+        g_term = cos_x * cos_y / np.maximum(eps, dist) ** 2
     if blocked is not None:
         g_term = g_term * ~blocked
     out = np.zeros(g["position"].shape)
@@ -131,6 +135,33 @@ def test_unshadowed_gather_matches_numpy(gl_ctx):
     expected = gather_numpy(r["gbuffer"], r["vpls"], 1e-4 * r["radius"])
     assert expected.max() > 0
     assert np.abs(r["indirect"] - expected).max() <= 1e-5 * expected.max()
+
+
+def test_vpl_areas_add_up_to_the_lit_surface(gl_ctx):
+    """Each VPL stands for its RSM texel's footprint / (N pdf): over the VPLs of a frame the
+    areas estimate the surface the light sees, here the open box's three 2 x 2 m faces (12 m^2),
+    as their fluxes estimate the RSM's flux (stratified: every frame is close)."""
+    scene = make_open_box()
+    for index in range(3):
+        v = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, {"vpl_count": 256}, seed=3, index=index)["vpls"]
+        assert (v["area"] > 0).all()
+        assert abs(v["area"].astype(np.float64).sum() / 12.0 - 1) < 0.05, v["area"].sum()
+
+
+def test_unshadowed_disc_element_matches_numpy_and_bounds_the_clamp(gl_ctx):
+    """near_field=disc_element: every VPL term with d^2 + A / pi (the gather against numpy over
+    the same VPLs), never above the clamp's image of the same seed, and equal far from the VPLs."""
+    scene = make_open_box()
+    disc = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, {"vpl_count": 128, "near_field": "disc_element"}, seed=2)
+    clamp = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, {"vpl_count": 128, "near_field": "clamp"}, seed=2)
+    assert np.array_equal(disc["vpls"]["position"], clamp["vpls"]["position"])
+    expected = gather_numpy(disc["gbuffer"], disc["vpls"], 1e-4 * disc["radius"], near_disc=True)
+    assert expected.max() > 0
+    assert np.abs(disc["indirect"] - expected).max() <= 1e-5 * expected.max()
+    assert (disc["indirect"] <= clamp["indirect"] * (1 + 1e-5) + 1e-9).all()
+    # the disc is a near-field change: it removes the clamp's hot pixels, not the image
+    assert disc["indirect"].max() < clamp["indirect"].max()
+    assert disc["indirect"].mean() > 0.8 * clamp["indirect"].mean()
 
 
 def test_unshadowed_converges_to_manylights(gl_ctx):

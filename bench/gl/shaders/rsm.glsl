@@ -67,22 +67,26 @@ void main() {
     vec3 incident = light_incident(u_light_index, g_position, wi, dist);
     vec3 n = dot(g_geo_normal, wi) < 0.0 ? -g_geo_normal : g_geo_normal;
     vec3 phi_in;
+    float cross_section;  // the texel's area across the light's rays at the surface
     if (u_layer_info.y > 0.5) {
         float texel_area = u_layer_info.x * u_layer_info.x;
         phi_in = incident * texel_area;  // irradiance on the plane facing the light
+        cross_section = texel_area;
     } else {
         vec2 ndc = g_clip.xy / g_clip.w;
         vec2 plane = ndc * u_layer_info.z;  // texel centre on the image plane at distance 1
         float s = 2.0 * u_layer_info.z / float(u_rsm_resolution);
         float solid_angle = s * s / pow(1.0 + dot(plane, plane), 1.5);
         phi_in = incident * dist * dist * solid_angle;  // I * falloff * d_omega
+        cross_section = dist * dist * solid_angle;
     }
     float len = length(g_normal);
     vec3 ns = len > 0.0 ? g_normal / len : n;
     phi_in *= abs(dot(ns, wi)) / max(abs(dot(n, wi)), 1e-4);
     out_position = vec4(g_position, 1.0);
     out_normal = vec4(n, 0.0);
-    out_flux = vec4(triangle_albedo[gl_PrimitiveID].rgb * phi_in, 1.0);
+    // .a: the texel's footprint on the surface (m^2), the area its VPL stands for (vpl_sample.glsl)
+    out_flux = vec4(triangle_albedo[gl_PrimitiveID].rgb * phi_in, cross_section / max(abs(dot(n, wi)), 1e-4));
     float metric = u_layer_info.y > 0.5 ? dot(g_position, lights[u_light_index].direction_cos_cutoff.xyz) : dist;
     gl_FragDepth = clamp((metric - u_depth_map.x) * u_depth_map.y, 0.0, 1.0);
 }

@@ -48,8 +48,10 @@ void main() {
     uint q = texel_cdf[a] - (a > first ? texel_cdf[a - 1u] : 0u);
 
     ivec2 t = rsm_atlas_texel(a);
-    vec3 flux = texelFetch(u_rsm_flux, t, 0).rgb;
-    vpls[k].position = vec4(texelFetch(u_rsm_position, t, 0).xyz, 1.0);
+    vec4 flux = texelFetch(u_rsm_flux, t, 0);
+    float share = float(double(total) / (double(u_vpl_count) * double(q)));  // 1 / (N pdf)
+    // .w: the surface area this VPL stands for, its texel's footprint / (N pdf)
+    vpls[k].position = vec4(texelFetch(u_rsm_position, t, 0).xyz, flux.a * share);
     vpls[k].normal = vec4(texelFetch(u_rsm_normal, t, 0).xyz, 0.0);
-    vpls[k].flux = vec4(flux * float(double(total) / (double(u_vpl_count) * double(q))), 0.0);
+    vpls[k].flux = vec4(flux.rgb * share, 0.0);
 }

@@ -35,7 +35,8 @@ void main() {
     ivec2 t = ivec2(layer % u_rsm_tiles_x, layer / u_rsm_tiles_x) * res + within;
     vec4 p = texelFetch(u_rsm_position, t, 0);
     float texels = float(u_rsm_layer_count) * float(res) * float(res);
-    vpls[k].position = vec4(p.xyz, 1.0);
+    vec4 flux = p.w == 0.0 ? vec4(0.0) : texelFetch(u_rsm_flux, t, 0);
+    vpls[k].position = vec4(p.xyz, flux.a * (texels / float(u_vpl_count)));  // .w: area it stands for
     vpls[k].normal = vec4(texelFetch(u_rsm_normal, t, 0).xyz, 0.0);
-    vpls[k].flux = vec4(p.w == 0.0 ? vec3(0.0) : texelFetch(u_rsm_flux, t, 0).rgb * (texels / float(u_vpl_count)), 0.0);
+    vpls[k].flux = vec4(flux.rgb * (texels / float(u_vpl_count)), 0.0);
 }
