@@ -33,7 +33,7 @@ VPL's hemicube and passes the test, so bands along those seams and door jambs re
 the wall blocks. It is the error of this method where occlusion decides the bounce: rooms/far
 (a room lit only through a door, whose visible bounce is 1/8 of the unshadowed one) scores
 image mean 1.17 of Mitsuba's and relMSE 11.8 / 5.0 / 2.6 at shadow_resolution 32 / 64 / 128
-(320 x 180, 3 seeds; 256: 1.07 at 160 x 120), rooms/main 5.5 / 3.0 / 1.6, while cornell_box,
+(320 x 180, 3 seeds; mean 1.06 at 256, 160 x 120, 4 seeds), rooms/main 5.5 / 3.0 / 1.6, while cornell_box,
 hidden_bounce and cornell_spot do not change; the frame costs 1.2-1.5x more at 128 than at 64.
 The default stays at 64 (the error per millisecond is better at 64 wherever no thin wall decides
 the bounce); `--param ir_shadowed.shadow_resolution=128` halves the seam error. Measured with

@@ -177,7 +177,7 @@ positional light in the space around the geometry) are skipped (SkipRow); so are
 2^20 visibility clusters or more. `extra` of the frame output reports the precomputation time
 (s, and per step), cluster counts (greedy, after merging), gate count and `closed_by_box`.
 
-Stress limit params:voxel_resolution=256: the voxelisation's exact-distance index samples every triangle half a voxel apart (topology.SurfaceIndex): conference (331k triangles, 256 voxels along its longest side) needs 17.6M samples, and their k-d tree, integer voxel indices and the dilated band exceed the stress suite's 6 GiB per-case memory cap (MemoryError allocating 403 MiB); sibenik, cornell_box and the procedural scenes pass at 256, and the default 64 needs 1/16 of the samples
+Stress limit params:voxel_resolution=256: the voxelisation's exact-distance index samples every triangle half a voxel apart (topology.SurfaceIndex): conference (331k triangles, 256 voxels along its longest side) needs 21.5M samples (2.5M at the default 64), and with their k-d tree and the voxel arrays the voxelisation exceeds the stress suite's 6 GiB per-case memory cap (MemoryError allocating 403 MiB); sibenik, cornell_box and the procedural scenes pass at 256
 """
 from __future__ import annotations
 
