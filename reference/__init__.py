@@ -7,6 +7,6 @@
     cache        content-addressed store of accumulated references (EXR + JSON)
     api          get_reference (convergence control), build_references (parallel precompute)
 
-Depends on the scene model only (`bench.scene`, `bench.imageio`): never on the rasteriser or
+Depends on the scene model only (`bench.model.scene`, `bench.model.imageio`): never on the rasteriser or
 a method it judges.
 """

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.scene import Scene, SceneError
+from bench.model.scene import Scene, SceneError
 from reference import cache
 from reference.env import ReferenceUnavailable, load_mitsuba  # noqa: F401  (re-exported)
 from reference.integrators import COMPONENTS, DEFAULT_MAX_LAYERS, EXTRA_COMPONENTS
@@ -85,7 +85,7 @@ def key_payload(scene: Scene, view: str, width: int, height: int, component: str
 
 def _check(scene, view, width, height, component, spp_cap, target_mse, pixel_sampling):
     if not isinstance(scene, Scene):
-        raise TypeError(f"reference: expected a bench.scene.Scene, got {type(scene).__name__}")
+        raise TypeError(f"reference: expected a bench.model.scene.Scene, got {type(scene).__name__}")
     if view not in scene.cameras:
         raise SceneError(f"scene '{scene.name}' has no camera '{view}'; cameras: {sorted(scene.cameras)}")
     if component not in COMPONENTS + EXTRA_COMPONENTS:

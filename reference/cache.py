@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.imageio import read_exr, write_exr
+from bench.model.imageio import read_exr, write_exr
 from reference.render import Moments
 
 SOURCES = ("convert.py", "integrators.py", "render.py")

@@ -11,7 +11,7 @@
 * Material: two-sided diffuse (`twosided` around `diffuse`) like the GBuffer, albedo per
   triangle through the mesh attribute `face_albedo` (`mesh_attribute` texture).
 * Emitters: Mitsuba's `point` (intensity, W/sr), `spot` (intensity, cutoff_angle, beam_width)
-  and `directional` (irradiance): the conventions of `bench.scene`, one to one.
+  and `directional` (irradiance): the conventions of `bench.model.scene`, one to one.
 * Sensor: `perspective` with the camera's *vertical* fov (`fov_axis = "y"`; Mitsuba's default
   is x), the image aspect, `look_at(eye, target, up)`; `hdrfilm` with a `box` filter so one
   film pixel is one rasteriser pixel (pixel centres at (i + 0.5, j + 0.5), row 0 at the top).
@@ -22,7 +22,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.scene import DirectionalLight, PointLight, Scene, SceneError, SpotLight
+from bench.model.scene import DirectionalLight, PointLight, Scene, SceneError, SpotLight
 
 
 def scene_origin(scene: Scene) -> np.ndarray:

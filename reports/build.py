@@ -27,9 +27,9 @@ from string import Template
 import numpy as np
 import pandas as pd
 
-from bench import results as store
-from bench.imageio import read_exr
-from bench.sweep import SPEEDUP_COMPONENTS, load_curves, pareto_table, sweep_table
+from bench.protocol import results as store
+from bench.model.imageio import read_exr
+from bench.analysis.curves import SPEEDUP_COMPONENTS, load_curves, pareto_table, sweep_table
 
 from . import comparisons, plots
 
@@ -340,7 +340,7 @@ def noise_floor_table(table: pd.DataFrame) -> str:
 
 def metrics_html(metric_cols: list[str]) -> str:
     try:
-        from bench.metrics import METRICS
+        from bench.analysis.metrics import METRICS
     except ImportError:
         METRICS = {}
     used = sorted({c.split(".", 1)[0] for c in metric_cols})

@@ -1,13 +1,13 @@
 """Report sections that compare methods with each other and with the papers' claims:
-the equal-time / equal-error matrices (bench.compare) and the paper-reproduction table
-(bench.reproduction). Both tables are also written as CSV beside the report's data."""
+the equal-time / equal-error matrices (bench.analysis.compare) and the paper-reproduction table
+(bench.analysis.reproduction). Both tables are also written as CSV beside the report's data."""
 from __future__ import annotations
 
 import pandas as pd
 
-from bench import results as store
-from bench.compare import comparison_table
-from bench.reproduction import reproduction_table
+from bench.protocol import results as store
+from bench.analysis.compare import comparison_table
+from bench.analysis.reproduction import reproduction_table
 
 MATRIX_ERROR = "mse.combined"
 KINDS = (("error_at_equal_time", "Error at equal time",

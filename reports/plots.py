@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.sweep import curve_for, mitsuba_seconds_for_error, pareto_front
+from bench.analysis.curves import curve_for, mitsuba_seconds_for_error, pareto_front
 
 ERROR_PANELS = (("mse.indirect", "indirect (vs Mitsuba, no indirect visibility)"),
                 ("mse.combined", "combined (vs Mitsuba direct + indirect)"))
@@ -119,7 +119,7 @@ def stage_plot(rows: pd.DataFrame, stages: list[str], path: Path, title: str) ->
 def scaling_fits(table: pd.DataFrame, triangles: dict, series_prefix: str = "highpoly_") -> dict:
     """method -> (triangle counts, median frame ms, fitted log-log slope or NaN) over the high-poly
     series (each method's default rung; the mean over a scene's views)."""
-    from bench.compare import default_row
+    from bench.analysis.compare import default_row
     rows = table[table["scene"].astype(str).str.startswith(series_prefix)]
     out = {}
     for method, g in rows.groupby("method", sort=True):

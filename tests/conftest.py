@@ -27,7 +27,7 @@ def gl_ctx(_session_gl_ctx):
 
 def make_open_box(light_position=(0.2, 1.2, 0.1), intensity=2.0):
     """Floor + back wall + left wall (6 triangles), a point light inside: no shadowing."""
-    from bench.scene import Camera, PointLight, Scene
+    from bench.model.scene import Camera, PointLight, Scene
     v = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1],
                   [-1, 0, -1], [1, 0, -1], [1, 2, -1], [-1, 2, -1],
                   [-1, 0, -1], [-1, 0, 1], [-1, 2, 1], [-1, 2, -1]], float)
@@ -56,7 +56,7 @@ def grid_quad(origin, u, v, n):
 
 def scene_from_parts(name, parts, colours, lights, cameras):
     """A Scene from (vertices, faces) parts, each with one albedo colour."""
-    from bench.scene import Scene
+    from bench.model.scene import Scene
     verts, faces, albedo, offset = [], [], [], 0
     for (v, f), col in zip(parts, colours):
         verts.append(v)
@@ -68,7 +68,7 @@ def scene_from_parts(name, parts, colours, lights, cameras):
 
 def make_grid_box(n=6, light_position=(0.2, 1.2, 0.1), intensity=2.0):
     """The open box of make_open_box with each wall an n x n grid (6 n^2 triangles)."""
-    from bench.scene import Camera, PointLight
+    from bench.model.scene import Camera, PointLight
     parts = [grid_quad([-1, 0, -1], [0, 0, 2], [2, 0, 0], n),   # floor, normal +y
              grid_quad([-1, 0, -1], [2, 0, 0], [0, 2, 0], n),   # back wall, normal +z
              grid_quad([-1, 0, -1], [0, 2, 0], [0, 0, 2], n)]   # left wall, normal +x

@@ -5,9 +5,9 @@ import json
 import numpy as np
 import pytest
 
-from bench.imageio import read_exr, write_exr
-from bench.runner import RunConfig, run
-from bench.scene import Scene
+from bench.model.imageio import read_exr, write_exr
+from bench.run.serial import RunConfig, run
+from bench.model.scene import Scene
 from tests.conftest import make_open_box
 
 

@@ -49,7 +49,7 @@ def _one_line_err(capsys) -> str:
 
 
 def test_every_row_failed_exits_non_zero(tmp_path, capsys, monkeypatch, private_cache):
-    from bench.registry import load_method
+    from bench.protocol.registry import load_method
 
     direct = load_method("direct")
 
@@ -57,7 +57,7 @@ def test_every_row_failed_exits_non_zero(tmp_path, capsys, monkeypatch, private_
         def prepare(self, *a, **k):
             raise RuntimeError("shader did not compile")
 
-    monkeypatch.setattr("bench.runner.load_method", lambda name: Crashes)
+    monkeypatch.setattr("bench.run.serial.load_method", lambda name: Crashes)
     args = ["run", "--scenes", "cornell_spot", "--methods", "direct", "--res", "16x12", "--frames", "1",
             "--warmup", "1", "--no-reference", "--no-progress", "--out", str(tmp_path / "r")]
     assert main(args) == 1
@@ -113,8 +113,8 @@ def test_reference_cap_of_run_and_quick(monkeypatch, extra, expected):
     def fake_run(cfg, log=None):
         seen["cap"] = cfg.reference_spp_cap
         raise Stop
-    import bench.runner
-    monkeypatch.setattr(bench.runner, "run", fake_run)
+    import bench.run.serial
+    monkeypatch.setattr(bench.run.serial, "run", fake_run)
     with pytest.raises(Stop):
         cli.main(["run", "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
     assert seen["cap"] == expected
@@ -125,7 +125,7 @@ def test_shadow_resolution_reaches_the_run_config(monkeypatch, command):
     """--shadow-resolution sets the shared shadow maps' tile side of `run` and `sweep`; unset, the
     runner sizes them from the image (RunConfig.shadow_resolution None)."""
     import bench.cli as cli
-    import bench.runner
+    import bench.run.serial
     seen = []
 
     class Stop(Exception):
@@ -134,7 +134,7 @@ def test_shadow_resolution_reaches_the_run_config(monkeypatch, command):
     def fake_run(cfg, log=None):
         seen.append(cfg.shadow_resolution)
         raise Stop
-    monkeypatch.setattr(bench.runner, "run", fake_run)
+    monkeypatch.setattr(bench.run.serial, "run", fake_run)
     base = [command, "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"]
     for extra in (["--shadow-resolution", "2048"], []):
         with pytest.raises(Stop):

@@ -7,7 +7,9 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench import compare, reproduction
+from bench.analysis import compare
+
+from bench.analysis import reproduction
 
 
 def row(method, t, e, *, default=False, iqr=0.0, floor=0.0, scene="s", view="v", params=None, **extra):

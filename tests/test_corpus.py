@@ -4,10 +4,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import bench.corpus as corpus
-from bench.corpus import list_scenes, load_scene
-from bench.corpus.procedural import sphere_inside_indirect
-from bench.scene import SceneError, compute_facts
+import bench.model.corpus as corpus
+from bench.model.corpus import list_scenes, load_scene
+from bench.model.corpus.procedural import sphere_inside_indirect
+from bench.model.scene import SceneError, compute_facts
 
 REPO = Path(__file__).resolve().parents[1]
 SMALL = ("cornell_spot", "cornell_tiled", "rooms", "hidden_bounce", "big_floor", "lit_wall_corner", "sphere_inside",

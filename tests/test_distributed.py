@@ -1,4 +1,4 @@
-"""Rows as Dask tasks (bench.distributed): a 2-process local cluster gives the serial run's rows
+"""Rows as Dask tasks (bench.run.cluster): a 2-process local cluster gives the serial run's rows
 and bit-identical images, and a worker killed mid-run loses nothing."""
 import json
 import os
@@ -10,8 +10,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.imageio import read_exr
-from bench.runner import RunConfig, run
+from bench.model.imageio import read_exr
+from bench.run.serial import RunConfig, run
 from tests.conftest import make_open_box
 
 pytest.importorskip("distributed")
@@ -88,12 +88,12 @@ def test_timed_rows_never_overlap_even_when_a_row_holds_the_gil(tmp_path):
     the host's flock does not depend on the worker answering."""
     import dask
 
-    from bench import distributed as dist
+    from bench.run import cluster as dist
 
     def hold_gil_under_the_lock(n):
         import os
         import time as _time
-        from bench.distributed import timing_lock
+        from bench.run.cluster import timing_lock
         with timing_lock():
             t0 = _time.time()
             sum(range(n))   # one C call: the GIL is held throughout
@@ -118,11 +118,11 @@ def test_timing_lock_is_exclusive_and_freed_when_its_holder_is_killed(tmp_path):
     import subprocess
     import sys
 
-    from bench.distributed import timing_lock, timing_lock_path
+    from bench.run.cluster import timing_lock, timing_lock_path
 
     path = timing_lock_path()
     assert path == tmp_path / "timing.lock"
-    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom bench.distributed import timing_lock\n"
+    holder = subprocess.Popen([sys.executable, "-c", "import sys, time\nfrom bench.run.cluster import timing_lock\n"
                                "with timing_lock():\n    print('held', flush=True)\n    time.sleep(120)\n"],
                               stdout=subprocess.PIPE, text=True)
     try:
@@ -154,7 +154,7 @@ def test_a_row_the_cluster_drops_is_submitted_again(tmp_path, monkeypatch):
     """A task the scheduler forgets (its future cancelled, as after a killed worker: "cancelled for
     reason: already forgotten") is submitted again: here every row's first task is cancelled on
     submission and every row still ends ok."""
-    from bench import distributed as dist
+    from bench.run import cluster as dist
     opened = dist.open_client
     cancelled = []
 

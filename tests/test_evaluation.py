@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from bench.evaluation import COMPARISONS, coverage_mask, evaluate_row
-from bench.metrics import METRICS
+from bench.analysis.evaluation import COMPARISONS, coverage_mask, evaluate_row
+from bench.analysis.metrics import METRICS
 
 
 def scene_images(h=16, w=20):
@@ -101,8 +101,8 @@ def test_mean_ratio_is_image_mean_over_reference_mean_on_covered_pixels():
 
 
 def test_metric_memo_returns_the_same_columns_without_recomputing(tmp_path, monkeypatch):
-    import bench.metrics
-    from bench.evaluation import evaluate_row
+    import bench.analysis.metrics
+    from bench.analysis.evaluation import evaluate_row
     rng = np.random.default_rng(3)
     imgs = {c: rng.random((12, 16, 3), dtype=np.float32) for c in ("direct", "indirect", "combined")}
     refs = {c: rng.random((12, 16, 3), dtype=np.float32) for c in ("direct", "indirect_unshadowed", "indirect_visible")}
@@ -112,7 +112,7 @@ def test_metric_memo_returns_the_same_columns_without_recomputing(tmp_path, monk
 
     def boom(*a, **k):
         raise AssertionError("recomputed despite the memo")
-    monkeypatch.setattr(bench.metrics, "compute_all", boom)
+    monkeypatch.setattr(bench.analysis.metrics, "compute_all", boom)
     assert evaluate_row(imgs, refs, memo_dir=tmp_path) == first
     # another image is another key: computed (here: the patched function raises)
     imgs2 = dict(imgs, indirect=imgs["indirect"] * 2)

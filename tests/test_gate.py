@@ -5,8 +5,8 @@ import shutil
 import numpy as np
 import pytest
 
-from bench.gate import adjust_p_values, compare_runs, error_check, timing_check
-from bench.results import load_results, params_json, save_results, summarize_samples
+from bench.gate.compare import adjust_p_values, compare_runs, error_check, timing_check
+from bench.protocol.results import load_results, params_json, save_results, summarize_samples
 
 MACHINE = {"gl_renderer": "llvmpipe (LLVM 19.1.7, 256 bits)", "cpu": "test cpu"}
 
@@ -337,9 +337,9 @@ def test_end_to_end_real_runs(tmp_path, monkeypatch, capsys):
     """Two tiny real runs (no Mitsuba): the baseline's own images stand in for the reference, so the
     baseline's errors are 0 and an albedo change in the candidate shows up as error regressions."""
     from bench.cli import main
-    from bench.evaluation import evaluate_row
-    from bench.imageio import read_exr
-    from bench.runner import RunConfig, run
+    from bench.analysis.evaluation import evaluate_row
+    from bench.model.imageio import read_exr
+    from bench.run.serial import RunConfig, run
     from tests.conftest import make_open_box
 
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))

@@ -4,7 +4,7 @@ import pytest
 
 from bench.gl import GLError, check_gl, render_direct, render_gbuffer
 from bench.gl.shaders import define_block, glsl_literal, stage_sources
-from bench.scene import Camera, DirectionalLight, PointLight, Scene, SpotLight
+from bench.model.scene import Camera, DirectionalLight, PointLight, Scene, SpotLight
 
 
 def test_define_injector_honours_zero(tmp_path):
@@ -151,7 +151,7 @@ def test_both_stage_clocks_time_a_pass(gl_ctx, open_box, clock):
 def test_harness_frame_and_stage_samples_per_clock(gl_ctx, open_box, monkeypatch, clock):
     """finish_wall fences every stage, so wall times and stage times come from separate frames;
     either way K timed frames give K wall samples and K samples per stage."""
-    from bench.harness import run_method
+    from bench.run.harness import run_method
     from methods.direct.method import DirectMethod
     monkeypatch.setenv("GIBENCH_STAGE_CLOCK", clock)
     calls = []

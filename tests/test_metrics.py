@@ -4,7 +4,7 @@ import math
 import numpy as np
 import pytest
 
-from bench import metrics as M
+from bench.analysis import metrics as M
 
 
 def srgb_encode(v):

@@ -6,8 +6,8 @@ from importlib.metadata import EntryPoint
 
 import pytest
 
-from bench import registry
-from bench.method import MethodBase, Param, ParamError, resolve_params
+from bench.protocol import registry
+from bench.protocol.method import MethodBase, Param, ParamError, resolve_params
 
 
 class FakeGood(MethodBase):

@@ -12,8 +12,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench import results as store
-from bench.imageio import read_exr, write_exr
+from bench.protocol import results as store
+from bench.model.imageio import read_exr, write_exr
 from reports import build_report
 from reports.build import error_scales, fmt
 
@@ -25,7 +25,7 @@ REF_COMPONENTS = ("direct", "indirect_unshadowed", "indirect_visible")
 @pytest.fixture(scope="module")
 def tiny_run(tmp_path_factory):
     """A real run: cornell_spot, direct + manylights, 48x36, no references."""
-    from bench.runner import RunConfig, run
+    from bench.run.serial import RunConfig, run
     out = tmp_path_factory.mktemp("run")
     run(RunConfig(scenes=["cornell_spot"], methods=["direct", "manylights"], width=48, height=36, frames=2,
                   warmup=1, references=False, progress=False, out=out), log=lambda m: None)

@@ -5,8 +5,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.imageio import read_exr
-from bench.runner import RunConfig, run
+from bench.model.imageio import read_exr
+from bench.run.serial import RunConfig, run
 from tests.conftest import make_grid_box, make_open_box
 
 
@@ -75,7 +75,7 @@ def test_same_seed_same_images_without_cache(tmp_path):
 
 
 def test_failures_are_recorded_and_others_go_on(tmp_path, monkeypatch):
-    from bench import registry
+    from bench.protocol import registry
     from importlib.metadata import EntryPoint
     real = registry.entry_points
     broken = EntryPoint("broken", "no_such_module_abc:Broken", registry.GROUP)
@@ -100,7 +100,7 @@ def test_skipped_rows(tmp_path):
 
 def interrupt_the_second_row(monkeypatch):
     """Patch the runner so that its second row raises KeyboardInterrupt; returns the real _run_row."""
-    from bench import runner as runner_mod
+    from bench.run import serial as runner_mod
     calls = {"n": 0}
     real = runner_mod.Runner._run_row
 
@@ -115,7 +115,7 @@ def interrupt_the_second_row(monkeypatch):
 
 
 def test_interrupted_run_resumes(tmp_path, monkeypatch):
-    from bench import runner as runner_mod
+    from bench.run import serial as runner_mod
     real = interrupt_the_second_row(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
         run(cfg(tmp_path, out="r"), log=lambda m: None)
@@ -147,7 +147,7 @@ def test_rerun_into_the_same_folder_keeps_other_rows(tmp_path):
 
 def test_interrupted_forced_run_resumes(tmp_path, monkeypatch):
     """--force re-renders, but an interrupted forced run resumes like any other."""
-    from bench import runner as runner_mod
+    from bench.run import serial as runner_mod
     run(cfg(tmp_path, out="f"), log=lambda m: None)
     real = interrupt_the_second_row(monkeypatch)
     with pytest.raises(KeyboardInterrupt):
@@ -177,7 +177,7 @@ def test_unusable_out_is_one_line(tmp_path):
 
 
 def test_all_black_view_warns(tmp_path):
-    from bench.scene import Camera
+    from bench.model.scene import Camera
     scene = make_open_box()
     away = Scene_with_camera(scene, Camera([0, 1, 3.5], [0, 1, 10], fov_y_deg=20))
     logs = []
@@ -197,13 +197,13 @@ def test_view_lit_only_by_the_bounce_does_not_warn(tmp_path):
 
 
 def Scene_with_camera(scene, camera):
-    from bench.scene import Scene
+    from bench.model.scene import Scene
     return Scene.build(scene.name, scene.vertices, scene.faces, scene.albedo, scene.lights, {"main": camera},
                        normals=scene.normals)
 
 
 def test_corrupt_results_tables_are_detected(tmp_path):
-    from bench.results import ResultsError, load_results
+    from bench.protocol.results import ResultsError, load_results
     run(cfg(tmp_path, out="t"), log=lambda m: None)
     d = tmp_path / "t"
     good = load_results(d)
@@ -230,8 +230,8 @@ def test_corrupt_results_tables_are_detected(tmp_path):
 
 
 def test_ladders_expand_to_rungs_and_param_overrides_them(tmp_path, monkeypatch):
-    from bench.runner import expand_param_sets
-    import bench.runner as runner_mod
+    from bench.run.config import expand_param_sets
+    import bench.run.config as runner_mod
 
     class Laddered:
         ladder = ({"n": 1}, {}, {"n": 9})
@@ -243,7 +243,7 @@ def test_ladders_expand_to_rungs_and_param_overrides_them(tmp_path, monkeypatch)
 
 
 def test_timing_settles_by_interval_budget_or_cap():
-    from bench.results import median_ci, timing_settled
+    from bench.protocol.results import median_ci, timing_settled
     steady = [10.0] * 8
     noisy = [10.0, 30.0] * 4
     assert not timing_settled(steady[:2], 3, 0.0, 1.0, 100, 0.05)          # never before the minimum
@@ -286,7 +286,7 @@ def test_rows_of_a_scene_share_one_upload(tmp_path, monkeypatch):
 
 
 def test_shadow_resolution_follows_the_view():
-    from bench.runner import auto_shadow_resolution, effective_shadow_resolution
+    from bench.run.config import auto_shadow_resolution, effective_shadow_resolution
     assert auto_shadow_resolution(320, 180) == 512 and auto_shadow_resolution(1280, 720) == 2048
     assert auto_shadow_resolution(64, 48) == 256 and auto_shadow_resolution(513, 10) == 1024
     assert effective_shadow_resolution(RunConfig(scenes=["x"], methods=["m"], shadow_resolution=128)) == 128

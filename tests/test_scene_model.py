@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from bench.scene import Camera, PointLight, Scene, SceneError, SpotLight, compute_facts
+from bench.model.scene import Camera, PointLight, Scene, SceneError, SpotLight, compute_facts
 
 TETRA_V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], float)
 TETRA_F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])

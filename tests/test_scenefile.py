@@ -1,11 +1,11 @@
-"""TOML scene files and mesh loading (bench.scenefile)."""
+"""TOML scene files and mesh loading (bench.model.scenefile)."""
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from bench.scene import SceneError, compute_facts
-from bench.scenefile import (MeshData, clean_mesh, load_scene_file, read_mesh, read_mesh_npz, transform_matrix,
+from bench.model.scene import SceneError, compute_facts
+from bench.model.scenefile import (MeshData, clean_mesh, load_scene_file, read_mesh, read_mesh_npz, transform_matrix,
                              write_mesh_npz)
 
 REPO = Path(__file__).resolve().parents[1]
@@ -56,7 +56,7 @@ def test_docstring_example_is_the_shipped_file():
     import textwrap
     import tomllib
 
-    import bench.scenefile as sf
+    import bench.model.scenefile as sf
     doc = sf.__doc__.split("Complete example (`scenes/examples/two_quads.toml`)::\n", 1)[1].split("\nTransform order", 1)[0]
     assert tomllib.loads(textwrap.dedent(doc)) == tomllib.loads(EXAMPLE.read_text())
 

@@ -1,5 +1,5 @@
-"""Property-based fuzzing of the TOML scene reader (bench.stress_fuzz) and the input-validation
-fixes it led to (bench.scene, bench.scenefile)."""
+"""Property-based fuzzing of the TOML scene reader (bench.stress.fuzz) and the input-validation
+fixes it led to (bench.model.scene, bench.model.scenefile)."""
 from __future__ import annotations
 
 import json
@@ -11,9 +11,9 @@ import pytest
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 
-from bench.scene import Camera, DirectionalLight, Scene, SceneError  # noqa: E402
-from bench.scenefile import load_scene_file  # noqa: E402
-from bench.stress_fuzz import (MESH_FILES, VALID_DOC, FuzzFailure, check_document, run_fuzz,  # noqa: E402
+from bench.model.scene import Camera, DirectionalLight, Scene, SceneError  # noqa: E402
+from bench.model.scenefile import load_scene_file  # noqa: E402
+from bench.stress.fuzz import (MESH_FILES, VALID_DOC, FuzzFailure, check_document, run_fuzz,  # noqa: E402
                                scene_documents, toml_document)
 
 
@@ -41,8 +41,8 @@ def test_toml_writer_round_trips():
 
 
 def test_check_document_flags_a_traceback(tmp_path, monkeypatch):
-    import bench.scenefile
-    monkeypatch.setattr(bench.scenefile, "load_scene_file", lambda p: (_ for _ in ()).throw(TypeError("boom")))
+    import bench.model.scenefile
+    monkeypatch.setattr(bench.model.scenefile, "load_scene_file", lambda p: (_ for _ in ()).throw(TypeError("boom")))
     with pytest.raises(FuzzFailure, match="TypeError: boom"):
         check_document(toml_document(VALID_DOC), "quad", tmp_path)
 
@@ -101,7 +101,7 @@ def test_non_finite_obj_vertex_is_rejected_without_warnings(tmp_path):
 
 def test_tiny_mirroring_scale_flips_the_winding(tmp_path):
     # det(diag(-1e-110, 1e-110, 1e-110)) underflows to -0.0, which is not < 0: the winding was kept
-    from bench.scenefile import read_mesh, transform_matrix, transformed
+    from bench.model.scenefile import read_mesh, transform_matrix, transformed
     (tmp_path / "m.obj").write_text(MESH_FILES["quad"])
     mesh = read_mesh(tmp_path / "m.obj")
     out = transformed(mesh, transform_matrix(scale=[-1e-110, 1e-110, 1e-110]))

@@ -5,7 +5,7 @@ sponza's sun lines under its roof), and the lit wall below must not darken (acne
 import numpy as np
 
 from bench.gl.passes import render_direct, render_gbuffer
-from bench.scene import Camera, DirectionalLight, Scene
+from bench.model.scene import Camera, DirectionalLight, Scene
 
 SLAB_Y, SLAB_DEPTH = 3.0, 0.5
 SUN_TRAVEL = np.array([0.0, -1.0, -0.35])           # down and towards the wall (z = 0, facing +z)

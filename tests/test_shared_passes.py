@@ -8,8 +8,8 @@ import pytest
 
 from bench.gl import GpuScene, SharedPasses
 from bench.gl.passes import read_rgba, shared_variant, stages_for_needs
-from bench.harness import measure_shared_passes, run_method
-from bench.registry import list_methods, load_method
+from bench.run.harness import measure_shared_passes, run_method
+from bench.protocol.registry import list_methods, load_method
 from tests.conftest import make_grid_box, make_open_box
 
 W, H, SHADOW = 64, 48, 256
@@ -201,7 +201,7 @@ def test_passes_that_cannot_serve_a_row_are_refused(gl_ctx):
 def test_runner_renders_each_views_shared_passes_once(tmp_path, monkeypatch):
     """Two methods, two rungs of one: one shared measurement for the view (warm-up + K frames),
     recorded in the manifest, whose medians every row adds to its own frame time."""
-    from bench.runner import RunConfig, run
+    from bench.run.serial import RunConfig, run
     calls = count_shared_renders(monkeypatch)
     cfg = RunConfig(scenes=[make_open_box()], methods=["direct", "manylights"], width=32, height=24, frames=2,
                     warmup=1, out=tmp_path / "run", references=False, progress=False,
@@ -253,7 +253,7 @@ def test_a_method_writing_the_shared_passes_is_caught(gl_ctx):
 def test_a_rows_timing_budget_is_spent_in_frame_time(gl_ctx):
     """Calibrated timing with lent passes charges each frame's shared cost to the budget, so a
     budget bounds the frames of a row as it did when each frame rendered the passes."""
-    from bench.harness import SharedViewPasses, TimingBudget
+    from bench.run.harness import SharedViewPasses, TimingBudget
     scene = make_open_box()
     direct = load_method("direct")
     gpu = GpuScene(gl_ctx, scene)

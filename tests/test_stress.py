@@ -1,4 +1,4 @@
-"""`gibench stress` (bench.stress, bench.stress_perturb): perturbations, figures, verdicts, the quick suite."""
+"""`gibench stress` (bench.stress.suite, bench.stress.perturb): perturbations, figures, verdicts, the quick suite."""
 from __future__ import annotations
 
 import json
@@ -10,17 +10,17 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench import stress
-from bench import stress_perturb as perturb
-from bench.method import FrameOutput, MethodBase, Param
-from bench.scene import DirectionalLight, PointLight, SpotLight, triangle_normals
+from bench.stress import suite as stress
+from bench.stress import perturb
+from bench.protocol.method import FrameOutput, MethodBase, Param
+from bench.model.scene import DirectionalLight, PointLight, SpotLight, triangle_normals
 from tests.conftest import make_grid_box, make_open_box
 
 
 def _spot_scene():
     """The grid box with a spot and a directional light added (every light kind)."""
     s = make_grid_box(n=4)
-    from bench.scene import Scene
+    from bench.model.scene import Scene
     lights = s.lights + [SpotLight([0.5, 1.5, 0.5], [0, 0, -1], 5.0), DirectionalLight([0.2, -1, -0.3], 0.5)]
     return Scene.build(s.name, s.vertices, s.faces, s.albedo, lights, s.cameras, normals=s.normals)
 
@@ -91,7 +91,7 @@ def test_scene_model_drops_repeated_triangles():
     base = make_open_box()
     faces = np.concatenate([base.faces, base.faces[[0]], base.faces[[2], ::-1], base.faces[[4]][:, [1, 2, 0]]])
     albedo = np.concatenate([base.albedo, base.albedo[[0, 2, 4]]])
-    from bench.scene import Scene
+    from bench.model.scene import Scene
     s = Scene.build("dups", base.vertices, faces, albedo, base.lights, base.cameras, normals=base.normals)
     assert s.triangle_count == base.triangle_count and s.dropped_duplicates == 3
     assert np.array_equal(s.faces, base.faces) and np.array_equal(s.albedo, base.albedo)
@@ -122,7 +122,7 @@ def test_grazing_camera_and_light():
 
 
 def test_param_variants_cover_the_declared_ends():
-    from bench.registry import load_method
+    from bench.protocol.registry import load_method
     cls = load_method("ir_unshadowed")
     full = dict(stress.param_variants(cls, quick=False))
     assert full["params:vpl_count=1"] == {"vpl_count": 1} and full["params:vpl_count=65536"] == {"vpl_count": 65536}
@@ -165,7 +165,7 @@ def test_documented_limits_from_the_manual():
 def test_documented_limits_of_the_shipped_manuals():
     """The manuals are the method modules' docstrings and their patterns hold colons
     (params:NAME=VALUE): every "Stress limit" line of every method reaches the suite."""
-    from bench.registry import list_methods, load_method
+    from bench.protocol.registry import list_methods, load_method
     for name in list_methods():
         cls = load_method(name)
         manual = sys.modules[cls.__module__].__doc__ or ""
@@ -215,7 +215,7 @@ def test_probe_counts_non_finite_pixels_instead_of_aborting(gl_ctx):
     counts = stress.pixel_counts(res.images["direct"], res.images["indirect"])
     assert (counts["nan_pixels"], counts["inf_pixels"], counts["negative_pixels"]) == (1, 1, 1)
     # the harness alone refuses the frame: the probe is what lets the suite count
-    from bench.harness import run_method
+    from bench.run.harness import run_method
     with pytest.raises(FloatingPointError):
         run_method(gl_ctx, TinyScaleNaN, scene, "main", 32, 24, warmup=1, frames=1)
 
@@ -248,8 +248,8 @@ def test_suite_flags_and_documents_failures(gl_ctx, tmp_path):
 
 @pytest.mark.slow
 def test_isolated_case_matches_in_process(gl_ctx):
-    from bench.corpus import load_scene
-    from bench.registry import load_method
+    from bench.model.corpus import load_scene
+    from bench.protocol.registry import load_method
     scene = load_scene("cornell_spot")
     here = stress.run_case(gl_ctx, load_method("direct"), scene, "main", 32, 24, {}, 0)
     there = stress.run_case_isolated({"scene": "cornell_spot", "variant": None, "method": "direct", "params": {},

@@ -9,8 +9,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.method import MethodBase, Param, ParamError
-from bench.sweep import (combined_curve, mitsuba_seconds_for_error, pareto_front, pareto_table,
+from bench.protocol.method import MethodBase, Param, ParamError
+from bench.analysis.curves import (combined_curve, mitsuba_seconds_for_error, pareto_front, pareto_table,
                          sweep_param_sets, sweep_table, variant_labels)
 
 
@@ -168,7 +168,7 @@ def test_cli_sweep_unknown_method(capsys):
 
 
 def test_bad_curves_file_names_itself(tmp_path):
-    from bench.sweep import load_curves
+    from bench.analysis.curves import load_curves
     assert load_curves(tmp_path) == {}  # absent: Mitsuba was not run
     (tmp_path / "reference_curves.json").write_text("{not json")
     with pytest.raises(ValueError, match="reference_curves.json: not valid JSON"):

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bench.scene import Camera
+from bench.model.scene import Camera
 
 
 def look_at(eye, target, up) -> np.ndarray:

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import moderngl
 
-from bench.scene import DirectionalLight, PointLight, Scene, SceneFacts, SpotLight, compute_facts
+from bench.model.scene import DirectionalLight, PointLight, Scene, SceneFacts, SpotLight, compute_facts
 from .camera import View
 
 LIGHT_KIND = {"point": 0, "spot": 1, "directional": 2}

@@ -5,7 +5,7 @@ reflective shadow map. `SharedPasses.render(prof)` runs them under the shared st
 Reuse: the passes depend on the view, the scene (its GpuScene, hence its seed) and the shadow
 and RSM resolutions only: never on a frame index, a method or its parameters (render() takes
 no frame). The runner therefore renders them once per view and lends them to every method and
-rung of the view (bench.harness.SharedViewPasses); methods only read them. `restore_state()`
+rung of the view (bench.run.harness.SharedViewPasses); methods only read them. `restore_state()`
 puts the GL state where `render()` would leave it, so a method's frame starts as if the passes
 had just been rendered. One exception to "a superset serves everyone": the direct pass is
 shadowed exactly when the shadow maps are built, so a method that needs `direct` without
@@ -35,7 +35,7 @@ from pathlib import Path
 import moderngl
 import numpy as np
 
-from bench.scene import DirectionalLight, PointLight, Scene, SpotLight
+from bench.model.scene import DirectionalLight, PointLight, Scene, SpotLight
 from .camera import View, look_at, orthographic, perspective
 from .context import check_gl, create_context, park
 from .gpu_scene import GpuScene

@@ -5,7 +5,7 @@ the shared passes (GBuffer + shadow maps + direct lighting) that the GI methods 
 
 Parameters: none.
 """
-from bench.method import FrameOutput, MethodBase
+from bench.protocol.method import FrameOutput, MethodBase
 
 
 class DirectMethod(MethodBase):

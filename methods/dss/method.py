@@ -95,7 +95,7 @@ import moderngl
 import numpy as np
 
 from bench.gl import load_program, set_uniforms
-from bench.method import FrameOutput, MethodBase, Param, SkipRow
+from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
 DSS_DEFINES = {"BINDING_DSS_TRIANGLES": 3, "BINDING_DSS_PATCHES": 4, "BINDING_DSS_SURFELS": 5,

@@ -159,7 +159,7 @@ Documented rules (a user setting always wins):
   weighing the same).
 
 Measured at the defaults, one frame (issue 10; a shared 2-core llvmpipe machine under load 8 to
-11, so times are ratios within one run). `python -m methods.flc.study` prints every figure below
+11, so times are ratios within one run). `python -m studies.flc_study` prints every figure below
 (its docstring has the commands). 8 seeds (0..7); against jittered `manylights` (flc lobe, 4
 jitter frames at 320 x 180, 16 at 128 x 96; big_floor's on `analysis.refined_scene(scene, 0.5)`):
 image-mean ratio (relative spread std/mean across seeds), per-pixel relMSE mean (what a black
@@ -207,7 +207,7 @@ sunlit). After it, same commands: sponza relmse.indirect 0.42 mean / 0.37 median
 16 seeds (8 seeds: 0.45; image mean 0.906 of Mitsuba's, 0.96 through the lobe factor), conference
 0.093 (0.969), sibenik 0.045 (0.997), 8 seeds.
 
-N_avg sweep (`python -m methods.flc.study --n-avg 64,128,256,512,1024 --seeds 4 --jitter-frames 4`,
+N_avg sweep (`python -m studies.flc_study --n-avg 64,128,256,512,1024 --seeds 4 --jitter-frames 4`,
 320 x 180), Mitsuba relmse.indirect mean over 4 seeds at N_avg 64 .. 1024 and the log-log slope
 of FLC's own time against N_avg: cornell_spot 0.055 0.052 0.052 0.053 0.049 (slope 0.60),
 hidden_bounce 0.121 0.089 0.044 0.040 0.037 (0.44), big_floor 0.046 0.047 0.046 0.045 0.046
@@ -293,7 +293,7 @@ from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.shaders import has_member
 from bench.gl.context import park
 from bench.gl.passes import GBuffer
-from bench.method import FrameOutput, MethodBase, Param, SkipRow
+from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
 from .levels import REACHES, FlcLevels, lit_area, presplit_count
 from .tessellation import MAX_TESS_LEVEL, measure_fmax

@@ -69,9 +69,9 @@ import moderngl
 
 from bench.gl import load_program, set_uniforms
 from bench.gl.context import park
-from bench.method import FrameOutput, MethodBase, Param, ParamError, SkipRow
-from methods.ir_unshadowed.method import CLAMP_DOC, VPL_COUNT_DOC
-from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler, VplGather
+from bench.protocol.method import FrameOutput, MethodBase, Param, ParamError, SkipRow
+from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
+from bench.gl.vpl import VPL_DEFINES, RsmVplSampler, VplGather
 
 SHADERS = Path(__file__).parent / "shaders"
 HEMICUBE_FACES = 5  # front + 4 sides; injected into the shaders as a #define

@@ -65,12 +65,10 @@ pixels and the variance falls as 1 / VPLs, so the count is the knob a user turns
 """
 from __future__ import annotations
 
-from bench.method import FrameOutput, MethodBase, Param
+from bench.protocol.method import FrameOutput, MethodBase, Param
 
-from .vpl_sampling import RsmVplSampler, VplGather
+from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC, RsmVplSampler, VplGather
 
-VPL_COUNT_DOC = "VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified)"
-CLAMP_DOC = "distance clamp eps of max(eps, |x - y|) relative to the scene radius (tames the 1/d^2 singularity)"
 NEAR_FIELD_DOC = ("disc_element: d^2 = |x - y|^2 + A / pi, A the area a VPL stands for (its RSM texel's footprint / "
                   "(N pdf)); clamp: max(eps, |x - y|)^2 only")
 NEAR_FIELD_CHOICES = ("disc_element", "clamp")

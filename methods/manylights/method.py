@@ -55,7 +55,7 @@ import numpy as np
 
 from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.context import loop_chunks
-from bench.method import FrameOutput, MethodBase, Param, SkipRow
+from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
 VPL_DEFINES = {"BINDING_VPL_TRIANGLES": 3, "BINDING_VPLS": 4}

@@ -77,7 +77,7 @@ emitter in every frame (W = 1). The article also blends the new lightmap with th
 over time; here the last complete window is shown as is (identical on the static scenes of
 the benchmark).
 
-How it is measured (bench.harness: frame 0 is an untimed warm-up that gives the row's
+How it is measured (bench.run.harness: frame 0 is an untimed warm-up that gives the row's
 images): the first render() call has an empty history, so it runs `bounces` x W frames of
 accumulation, exactly what the method does over that many frames of a static scene; the row's
 image is therefore the converged state the method shows after its accumulation window. Every
@@ -203,7 +203,7 @@ import numpy as np
 
 from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.context import check_gl, loop_chunks, park
-from bench.method import FrameOutput, MethodBase, Param, SkipRow
+from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
 from .hierarchy import build_tree
 from .unwrap import LightmapTooSmall, chart_image, find_charts, unwrap

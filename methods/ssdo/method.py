@@ -93,7 +93,7 @@ spot lights the ceiling above and behind the camera, and no pixel of the ceiling
 face (730 pixels), whose light lands mostly off screen. `hidden_bounce`: every lit surface is
 behind the camera by design. `rooms`: the lit room is seen only through a door. That light is
 SSDO's documented blind spot, not a bug; the same near-zero figures for its ratio follow. At the
-defaults (seed 0, 128x96; `python -m methods.ssdo.screen_bound RUN_DIR`) SSDO's share follows the
+defaults (seed 0, 128x96; `python -m studies.ssdo_screen_bound RUN_DIR`) SSDO's share follows the
 bound on every default scene: rooms/main 0.094 (bound 0.091), sphere_inside 0.29 (0.30),
 cornell_spot 0.001 (0.003), hidden_bounce and rooms/far 0 (0), lit_wall_corner 0.91 (0.995),
 big_floor 1.04 (0.76; seed 0 is the highest of seeds 0..4).
@@ -150,7 +150,7 @@ import numpy as np
 
 from bench.gl import load_program, set_uniforms
 from bench.gl.context import park
-from bench.method import FrameOutput, MethodBase, Param
+from bench.protocol.method import FrameOutput, MethodBase, Param
 
 SHADERS = Path(__file__).parent / "shaders"
 # A sample counts as behind the visible surface only if farther by this relative view depth

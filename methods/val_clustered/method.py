@@ -155,9 +155,9 @@ import numpy as np
 from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.context import loop_chunks, park
 from bench.gl.passes import frame_random
-from bench.method import FrameOutput, MethodBase, Param, ParamError
-from methods.ir_unshadowed.method import CLAMP_DOC
-from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler
+from bench.protocol.method import FrameOutput, MethodBase, Param, ParamError
+from bench.gl.vpl import CLAMP_DOC
+from bench.gl.vpl import VPL_DEFINES, RsmVplSampler
 
 SHADERS = Path(__file__).parent / "shaders"
 VAL_RECORD_BYTES = 3 * 16            # struct Val in val_records.glsl: three vec4

@@ -190,9 +190,9 @@ import numpy as np
 
 from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.context import LOOP_CHUNK, loop_chunks, park
-from bench.method import FrameOutput, MethodBase, Param, SkipRow
-from methods.ir_unshadowed.method import CLAMP_DOC, VPL_COUNT_DOC
-from methods.ir_unshadowed.vpl_sampling import VPL_DEFINES, RsmVplSampler
+from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
+from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
+from bench.gl.vpl import VPL_DEFINES, RsmVplSampler
 
 from .topology import MAX_GATE_EDGES, Topology, TopologyError, build_topology
 

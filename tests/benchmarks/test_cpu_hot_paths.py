@@ -6,7 +6,7 @@ import math
 import numpy as np
 import pytest
 
-from bench import metrics as M
+from bench.analysis import metrics as M
 
 W, H = 128, 96
 
@@ -33,7 +33,7 @@ def test_compute_all_128x96(benchmark):
 
 @pytest.mark.benchmark(group="metrics")
 def test_evaluate_row_128x96(benchmark):
-    from bench.evaluation import evaluate_row
+    from bench.analysis.evaluation import evaluate_row
     img, ref = image_pair(1)
     ind_img, ind_ref = image_pair(2)
     images = {"direct": img, "indirect": 0.3 * ind_img}
@@ -45,8 +45,8 @@ def test_evaluate_row_128x96(benchmark):
 
 @pytest.mark.benchmark(group="scene")
 def test_compute_facts_cornell_tiled(benchmark):
-    from bench.corpus import load_scene
-    from bench.scene import compute_facts
+    from bench.model.corpus import load_scene
+    from bench.model.scene import compute_facts
     scene = load_scene("cornell_tiled")
     facts = benchmark(compute_facts, scene)
     assert facts.triangle_count == scene.triangle_count

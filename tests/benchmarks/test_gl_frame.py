@@ -11,8 +11,8 @@ import pytest
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, check_gl, read_rgb
 from bench.gl.context import park
-from bench.registry import load_method
-from bench.scene import compute_facts
+from bench.protocol.registry import load_method
+from bench.model.scene import compute_facts
 
 W, H = 128, 96
 SCENE = "cornell_spot"
@@ -21,7 +21,7 @@ ROUNDS, WARMUP_ROUNDS = 12, 2
 
 @pytest.fixture(scope="module")
 def scene_and_facts():
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene(SCENE)
     return scene, compute_facts(scene)
 
@@ -49,7 +49,7 @@ def test_gpu_scene_upload(benchmark, gl_ctx, scene_and_facts):
 
 
 class FrameRig:
-    """The harness's per-row setup (bench.harness.run_method) kept alive so one frame can be timed."""
+    """The harness's per-row setup (bench.run.harness.run_method) kept alive so one frame can be timed."""
 
     def __init__(self, ctx, method_name, scene, facts, camera="main", seed=0):
         self.ctx = ctx

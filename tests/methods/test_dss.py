@@ -3,12 +3,12 @@ determinism and stage timings."""
 import numpy as np
 import pytest
 
-from bench.corpus import load_scene
+from bench.model.corpus import load_scene
 from bench.gl import GpuScene, SharedPasses, StageProfiler, check_gl, render_gbuffer
 from bench.gl.passes import Frame
-from bench.harness import run_method
-from bench.method import ParamError, SkipRow, resolve_params
-from bench.scene import compute_facts
+from bench.run.harness import run_method
+from bench.protocol.method import ParamError, SkipRow, resolve_params
+from bench.model.scene import compute_facts
 from methods.dss.method import SURFEL_BYTES, DeepScreenSpace, patch_records, split_factors
 from methods.manylights.method import ManyLights
 from tests.conftest import make_grid_box, make_open_box
@@ -183,7 +183,7 @@ def test_interleaving_is_unshuffled_without_pattern(gl_ctx):
 def test_sphere_inside_matches_analytic_radiance(gl_ctx):
     """Inside a diffuse sphere the one-bounce radiance is rho^2 I / (pi R^2) everywhere: checks
     DSS's radiometry without any other method."""
-    from bench.corpus.procedural import sphere_inside_indirect
+    from bench.model.corpus.procedural import sphere_inside_indirect
     scene = load_scene("sphere_inside")
     expected = sphere_inside_indirect()
     exact = run_method(gl_ctx, DeepScreenSpace, scene, "main", W, H, EXACT, frames=1).indirect / expected
@@ -232,8 +232,8 @@ def test_sampling_pattern_follows_the_geometry_not_the_triangle_order(gl_ctx):
     and a T-junction on 32 triangles changes hidden_bounce's image by its own split surfels only
     (keyed by triangle index, every later triangle's surfels drew new sub-buffers: the whole
     interleaving noise changed, mean +-3% at 32 x 24, as much as another seed)."""
-    from bench.scene import Scene
-    from bench.stress_perturb import t_junction
+    from bench.model.scene import Scene
+    from bench.stress.perturb import t_junction
     scene = load_scene("hidden_bounce")
     perm = np.random.default_rng(1).permutation(scene.triangle_count)
     shuffled = Scene.build("hidden_bounce_shuffled", scene.vertices, scene.faces[perm], scene.albedo[perm],

@@ -7,8 +7,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bench.harness import run_method
-from bench.method import ParamError
+from bench.run.harness import run_method
+from bench.protocol.method import ParamError
 from methods.flc.levels import FlcLevels, auto_levels
 from methods.flc.method import SHADERS, ForwardLightCuts, auto_tiling_level
 from methods.manylights.method import ManyLights
@@ -101,8 +101,8 @@ def test_measured_vpls_reaching_a_pixel_grow_in_proportion_to_n_avg(levels):
     cut into regular pieces): 4x N_avg gives 3-5x the VPLs whose f^k is non-zero at a receiver,
     with the default level set and with four bounded-reach levels below the unbounded top.
     The printed eq. 18 (with the former defaults N = 5, bounded) does not: its count even falls."""
-    from bench.corpus import load_scene
-    from methods.flc.analysis import count_vpls_reaching
+    from bench.model.corpus import load_scene
+    from studies.flc_analysis import count_vpls_reaching
     scene = load_scene("cornell_spot")
     total = {n: count_vpls_reaching(scene, {"n_avg": n, "levels": levels}, receivers=96)["total"] for n in (64, 256)}
     assert 3.0 <= total[256] / total[64] <= 5.0, total
@@ -266,7 +266,7 @@ def test_vpl_irradiance_uses_the_shading_normal(gl_ctx):
     """The VPL's incident cosine is taken against the interpolated shading normal (as Mitsuba and
     `manylights`), the emission side against the face: under a directional light, tilting the
     vertex normals of the emitting floor scales the bounce by cos(tilted) / cos(flat)."""
-    from bench.scene import Camera, DirectionalLight
+    from bench.model.scene import Camera, DirectionalLight
     from tests.conftest import grid_quad, scene_from_parts
     light = DirectionalLight([0.3, -1.0, 0.2], [3.0, 3.0, 3.0])
     parts = [grid_quad([-1, 0, -1], [0, 0, 2], [2, 0, 0], 6),     # floor, normal +y: the emitter
@@ -291,7 +291,7 @@ def test_divergent_triangles_are_presplit_into_sub_patches(gl_ctx):
     """At n_avg = 4096 the open box's 2 m^2 triangles need more than tessellation level
     TESS_SUB_LEVEL: each is appended as m x m equal sub-patches (m > 1) that this level makes
     regular, and the result still agrees with the exact sum."""
-    from bench.scene import compute_facts
+    from bench.model.scene import compute_facts
     from methods.flc.levels import presplit_count
     from methods.flc.method import CPU_MARGIN, TESS_SUB_LEVEL
     from methods.flc.tessellation import measure_fmax
@@ -366,7 +366,7 @@ def test_bad_parameter_is_named(gl_ctx):
 
 
 def test_energy_beyond_support_measurement(gl_ctx):
-    from methods.flc.analysis import energy_beyond_support
+    from studies.flc_analysis import energy_beyond_support
     scene = make_grid_box(4)
     shares = [energy_beyond_support(gl_ctx, scene, "main", 32, 24, {"mu": mu, "levels": n, "reach": "eq18_printed"})
               ["share_beyond_DN"] for mu, n in ((2.0, 3), (4.0, 5), (16.0, 15))]
@@ -376,7 +376,7 @@ def test_energy_beyond_support_measurement(gl_ctx):
 
 
 def test_level_statistics_is_consistent(gl_ctx):
-    from methods.flc.analysis import energy_beyond_support, level_statistics
+    from studies.flc_analysis import energy_beyond_support, level_statistics
     scene = make_grid_box(4)   # every triangle faces the point light: 12 m^2 lit
     params = {"mu": 4.0, "levels": 1, "progressive_frames": 4}
     bounded = level_statistics(gl_ctx, scene, "main", 32, 24, dict(params, last_level_unbounded=False))
@@ -397,7 +397,7 @@ W, H = 64, 48
 
 @pytest.fixture(scope="module")
 def cornell_spot(_session_gl_ctx):
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("cornell_spot")
     ml = run_method(_session_gl_ctx, ManyLights, scene, "main", W, H, {"emission": "flc", "jitter_frames": 64},
                     seed=1, frames=1).indirect
@@ -458,7 +458,7 @@ def test_compute_selection_gives_the_single_draw_image(gl_ctx):
     """The regular pass's compute selection (ordered, in scene order) draws exactly what the
     paper's single draw of the whole scene would: the same image, bit for bit, with divergent
     triangles (big_floor) and several levels (cornell_spot at levels 2)."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     for name, params in (("big_floor", {}), ("cornell_spot", {"levels": 2})):
         scene = load_scene(name)
         images = [run_method(gl_ctx, ForwardLightCuts, scene, "main", 64, 48, dict(params, regular_selection=mode),

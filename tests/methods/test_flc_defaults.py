@@ -8,10 +8,10 @@ Small images and few seeds: the 8-seed figures at the benchmark's resolutions ar
 import numpy as np
 import pytest
 
-from bench.corpus import load_scene
+from bench.model.corpus import load_scene
 from bench.gl.passes import render_gbuffer
-from bench.harness import run_method
-from bench.scene import compute_facts
+from bench.run.harness import run_method
+from bench.model.scene import compute_facts
 from methods.flc.method import ForwardLightCuts
 from methods.manylights.method import ManyLights
 
@@ -63,7 +63,7 @@ def test_n_avg_sweep_lowers_the_error(gl_ctx):
 def test_single_frame_study_and_refined_reference(gl_ctx):
     """The manual's measurement helpers: the study's figures are consistent with each other, and
     the refined reference scene keeps the surfaces (area, albedo, lights) with smaller triangles."""
-    from methods.flc.analysis import refined_scene, single_frame_study
+    from studies.flc_analysis import refined_scene, single_frame_study
     from tests.conftest import make_open_box
     scene = make_open_box()
     fine = refined_scene(scene, 0.5)
@@ -100,10 +100,10 @@ def test_near_field_clamp_removes_the_single_vpl_spikes(gl_ctx):
 
 
 def test_study_command_prints_the_manual_figures(gl_ctx, capsys):
-    """`python -m methods.flc.study` (the manual's tables): one JSON line per view with the
+    """`python -m studies.flc_study` (the manual's tables): one JSON line per view with the
     manylights ratio, spread and errors, and in sweep mode the error and time per N_avg."""
     import json
-    from methods.flc import study
+    from studies import flc_study as study
     study.main(["cornell_spot", "--res", "32x24", "--seeds", "2", "--jitter-frames", "4"])
     row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert 0.7 <= row["ml_ratio"] <= 1.3

@@ -6,10 +6,10 @@ At the defaults, small images, one frame per seed."""
 import numpy as np
 import pytest
 
-from bench.corpus import load_scene
-from bench.harness import run_method
-from bench.method import resolve_params
-from bench.scene import Camera, PointLight, Scene, SpotLight, compute_facts
+from bench.model.corpus import load_scene
+from bench.run.harness import run_method
+from bench.protocol.method import resolve_params
+from bench.model.scene import Camera, PointLight, Scene, SpotLight, compute_facts
 from methods.flc.method import ForwardLightCuts
 from methods.manylights.method import ManyLights
 

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from bench.gl import render_gbuffer
-from bench.harness import run_method
+from bench.run.harness import run_method
 from methods.manylights.method import ManyLights
 from tests.conftest import make_grid_box, make_open_box
 
@@ -91,7 +91,7 @@ def test_jitter_converges_and_is_deterministic(gl_ctx):
 
 
 def test_skips_scene_over_budget(gl_ctx):
-    from bench.method import SkipRow
+    from bench.protocol.method import SkipRow
     with pytest.raises(SkipRow, match="triangles"):
         run_method(gl_ctx, ManyLights, make_open_box(), "main", 16, 16, {"max_triangles": 2}, frames=1)
 
@@ -112,7 +112,7 @@ def test_more_vpls_than_one_shader_loop_may_run(gl_ctx):
 def smooth_cube_scene():
     """A cube of 8 shared vertices (area-weighted vertex normals: smooth shading that tilts up to
     55 degrees from the faces) on a flat floor under a point light."""
-    from bench.scene import Camera, PointLight, Scene
+    from bench.model.scene import Camera, PointLight, Scene
     from tests.conftest import grid_quad
     c = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (0.2, 1.2) for z in (-0.5, 0.5)], float)
     f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
@@ -165,7 +165,7 @@ def test_smooth_shaded_emitters_match_mitsuba():
 def small_spot_on_big_triangles():
     """big_floor in small: a 4 x 4 m floor of 2 triangles whose centroids both lie outside the
     disc a narrow spot lights, and an unlit box beside the disc receiving its bounce."""
-    from bench.scene import Camera, SpotLight
+    from bench.model.scene import Camera, SpotLight
     from tests.conftest import grid_quad, scene_from_parts
     q = lambda o, u, v: grid_quad(o, u, v, 1)  # noqa: E731
     parts = [q([-2, 0, -2], [0, 0, 4], [4, 0, 0]), q([0.1, 0, 0.7], [0, 0.6, 0], [0, 0, 0.6]),
@@ -198,8 +198,8 @@ def test_centroid_vpls_miss_a_small_spot_and_jitter_converges():
 def test_float32_slivers_emit_nothing_instead_of_nan(gl_ctx):
     # 1e-6-aspect slivers on the rooms' surfaces: their float32 cross product can vanish; the
     # normalised normal then made every pixel they reach NaN (the stress suite's degenerate row)
-    from bench.corpus import load_scene
-    from bench.stress_perturb import sliver
+    from bench.model.corpus import load_scene
+    from bench.stress.perturb import sliver
     base = load_scene("rooms")
     scene = sliver(base, count=32, seed=0)
     out = run_method(gl_ctx, ManyLights, scene, "main", 32, 24, {}, frames=1)

@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, check_gl
-from bench.harness import run_method
-from bench.method import ParamError, SkipRow, resolve_params
-from bench.scene import Camera, PointLight, Scene, compute_facts
+from bench.run.harness import run_method
+from bench.protocol.method import ParamError, SkipRow, resolve_params
+from bench.model.scene import Camera, PointLight, Scene, compute_facts
 from methods.pbgi.method import TextureSpacePBGI
 from methods.pbgi.unwrap import MIN_RESOLUTION, unwrap
 from tests.conftest import make_grid_box, make_open_box
@@ -109,8 +109,8 @@ def test_unwrap_density_survives_t_junctions_slivers_and_flips():
     30 reversed windings made 30 more charts (on lit_wall_corner: density -10%). T-junction
     edges now link their triangles, a thin chart's box follows its principal axes, and face
     normals are turned to the shading normals' side (surfaces are two-sided)."""
-    from bench.corpus import load_scene
-    from bench.stress_perturb import flipped, sliver, t_junction
+    from bench.model.corpus import load_scene
+    from bench.stress.perturb import flipped, sliver, t_junction
 
     for name in ("big_floor", "lit_wall_corner"):
         scene = load_scene(name)
@@ -157,7 +157,7 @@ def test_rotated_chart_partition_of_unity(gl_ctx):
 
 
 def test_curved_charts_partition_the_sphere(gl_ctx):
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("sphere_inside", subdivisions=2)
     live = _Live(gl_ctx, scene, {})
     try:
@@ -273,8 +273,8 @@ def test_converges_to_manylights_with_texel_density(gl_ctx):
 
 
 def test_sphere_inside_analytic_and_bounces(gl_ctx):
-    from bench.corpus import load_scene
-    from bench.corpus.procedural import sphere_inside_indirect
+    from bench.model.corpus import load_scene
+    from bench.model.corpus.procedural import sphere_inside_indirect
     scene = load_scene("sphere_inside", subdivisions=3)
     expected = sphere_inside_indirect()  # rho^2 I / (pi R^2), rho = 0.5
 
@@ -295,7 +295,7 @@ def test_hierarchy_converges_to_all_pairs(gl_ctx):
     (refine_ratio 0, every texel visited, is checked exactly in the brute-force test). The
     lightmap is capped at 128^2 (12,400 texels on cornell_spot): the all-pairs sum costs
     texels^2, 20 times more at the default 256^2, and the refinement rule is relative."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("cornell_spot")
     default = TextureSpacePBGI.params["refine_ratio"].default
 
@@ -323,7 +323,7 @@ def test_amortised_gather_accumulates_the_full_sum(gl_ctx):
     (empty history) shows the converged sum, that of gathering every emitter at once (up to
     the extra refinement at slice boundaries); each later frame adds one slice to the
     accumulating half, and after W frames that half is the full sum again and is displayed."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("cornell_spot")
     once = _Live(gl_ctx, scene, {"emitter_budget": 0}, 32, 24)
     try:
@@ -373,7 +373,7 @@ def test_amortised_all_pairs_slices_add_up_exactly(gl_ctx):
 
 def test_texel_density_rule():
     """The lightmap side is the smallest that packs the charts at the target density, capped."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("cornell_spot")
     v, f = scene.vertices, scene.faces
     uw = unwrap(v, f, 256, 1e-9, density=20.0)
@@ -393,8 +393,8 @@ def test_lightmap_does_not_depend_on_the_scene_unit(gl_ctx):
     point and spot intensities times s^2: the same radiance) gets the same lightmap and image.
     With a density per metre, cornell_spot scaled by 1e-2 (centimetres read as metres) fell to
     the 16^2 minimum lightmap (its image changed by 9%) and scaled by 1e2 jumped to the cap."""
-    from bench.corpus import load_scene
-    from bench.stress_perturb import scale
+    from bench.model.corpus import load_scene
+    from bench.stress.perturb import scale
     scene = load_scene("cornell_spot")
     runs = {s: run_method(gl_ctx, TextureSpacePBGI, scene if s == 1.0 else scale(scene, s), "main", 32, 24, {},
                           frames=1) for s in (1.0, 1e-2)}
@@ -413,7 +413,7 @@ def test_big_floor_indirect_matches_mitsuba(gl_ctx):
     unshadowed Mitsuba reference, and closer than with a lightmap of ~2 texels per metre (what
     the former fixed 128^2 gave it; 96^2 now, the charts costing no margin texels)."""
     pytest.importorskip("mitsuba")
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     from reference.api import get_reference
     scene = load_scene("big_floor")
     ref = get_reference(scene, "main", 64, 48, "indirect_unshadowed", spp_cap=256)
@@ -470,7 +470,7 @@ def test_folded_chart_is_split(gl_ctx):
 def test_stress_limits_reach_the_suite():
     """The manual's "Stress limit" lines (module docstring) are the class's stress_limits, which
     `gibench stress` reads: the documented parameter extremes match, the others do not."""
-    from bench.stress import documented_limits, match_limit
+    from bench.stress.suite import documented_limits, match_limit
     limits = documented_limits(TextureSpacePBGI)
     assert match_limit(limits, "params:bounces=8") and match_limit(limits, "params:refine_ratio=0")
     assert match_limit(limits, "params:refine_ratio=1") is None and match_limit(limits, "scale=1e-02") is None
@@ -507,7 +507,7 @@ def test_unwrap_axes_do_not_depend_on_the_scene_unit(gl_ctx):
     on another density and the indirect image changed by 4.7% at every scale but 1e-4). The unwrap
     now works on the scene's float64 positions and ties go to the lowest axis: the charts, the
     lightmap and the image are the same in every unit."""
-    from bench.stress_perturb import scale
+    from bench.stress.perturb import scale
     scene = _tilted_tiles_scene()
     runs = {}
     for s in (1.0, 1e-2, 1e-4, 1e2):

@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bench.scene import Camera, PointLight
+from bench.model.scene import Camera, PointLight
 from methods.pbgi.hierarchy import build_tree
 from methods.pbgi.method import TILE_TEXELS
 from tests.conftest import grid_quad, scene_from_parts

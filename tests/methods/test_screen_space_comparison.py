@@ -16,16 +16,16 @@ FLC runs at its defaults, one real-time frame (issue 10: its defaults estimate t
 single frame; until then this test ran it in progressive mode with 64 sub-frames because one
 default frame scored relMSE 0.74-1.00 on hidden_bounce, as bad as SSDO).
 
-DSS and FLC are included only if they load (`bench.registry.load_method`); the SSDO-vs-
+DSS and FLC are included only if they load (`bench.protocol.registry.load_method`); the SSDO-vs-
 manylights part always runs.
 """
 import numpy as np
 import pytest
 
-from bench.corpus import load_scene
-from bench.harness import run_method
-from bench.registry import MethodLoadError, load_method
-from bench.scene import Scene, SpotLight, compute_facts
+from bench.model.corpus import load_scene
+from bench.run.harness import run_method
+from bench.protocol.registry import MethodLoadError, load_method
+from bench.model.scene import Scene, SpotLight, compute_facts
 from methods.manylights.method import ManyLights
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
 

@@ -13,16 +13,16 @@ import moderngl
 import numpy as np
 import pytest
 
-from bench.corpus import load_scene
+from bench.model.corpus import load_scene
 from bench.gl import load_program, render_direct, render_gbuffer
 from bench.gl.context import park
-from bench.harness import run_method
-from bench.method import ParamError, resolve_params
-from bench.scene import Camera, DirectionalLight, PointLight, Scene, compute_facts
+from bench.run.harness import run_method
+from bench.protocol.method import ParamError, resolve_params
+from bench.model.scene import Camera, DirectionalLight, PointLight, Scene, compute_facts
 from methods.manylights.method import ManyLights
 from methods.ssdo.method import RADIUS_VIEW_REL, SHADERS, SSDO_DEFINES
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
-from methods.ssdo.screen_bound import screen_sender_bounce
+from studies.ssdo_screen_bound import screen_sender_bounce
 from tests.conftest import grid_quad, make_grid_box, scene_from_parts
 
 W, H = 96, 72
@@ -126,7 +126,7 @@ def test_registered_and_documented():
     import sys
     from pathlib import Path
 
-    from bench.registry import load_method
+    from bench.protocol.registry import load_method
     assert load_method("ssdo") is Ssdo
     module = sys.modules[Ssdo.__module__]      # the module docstring is the manual
     readme = (Path(module.__file__).parent / "README.md").read_text()

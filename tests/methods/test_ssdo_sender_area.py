@@ -5,11 +5,11 @@ A_s = pi r_max^2 / N. The estimate then converges to the exact bounce from on-sc
 seen at grazing angles (big_floor: 0.25 of the reference against a bound of 0.76)."""
 import numpy as np
 
-from bench.corpus import load_scene
+from bench.model.corpus import load_scene
 from bench.gl import render_gbuffer
-from bench.harness import run_method
+from bench.run.harness import run_method
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
-from methods.ssdo.screen_bound import screen_sender_bounce
+from studies.ssdo_screen_bound import screen_sender_bounce
 from tests.methods.test_ssdo import make_corner, wall_bands
 
 

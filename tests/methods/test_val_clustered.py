@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, read_rgb
-from bench.harness import run_method
-from bench.method import ParamError, resolve_params
+from bench.run.harness import run_method
+from bench.protocol.method import ParamError, resolve_params
 from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.ir_unshadowed.method import InstantRadiosityUnshadowed
 from methods.val_clustered.method import LIFT_SCALE, NEAR_SCALE, ClusteredVirtualAreaLights
@@ -152,8 +152,8 @@ def test_sphere_inside_analytic(gl_ctx):
     VAL's soft shadow may darken the concave surface. With interleaving, the blur must give
     the same level (each pixel sums 1/B^2 of the VPLs, weighted B^2), and so must the paper's
     Halton VPLs."""
-    from bench.corpus import load_scene
-    from bench.corpus.procedural import sphere_inside_indirect
+    from bench.model.corpus import load_scene
+    from bench.model.corpus.procedural import sphere_inside_indirect
     scene = load_scene("sphere_inside")
     expected = sphere_inside_indirect()
     for interleave, sampling in ((1, "importance"), (4, "importance"), (1, "halton")):
@@ -320,7 +320,7 @@ def test_default_soft_visibility_matches_per_vpl_shadows_on_rooms(gl_ctx):
     within 15% of per-VPL hard shadows with the same VPLs (`ir_shadowed`, 1024 VPLs). The CSM
     shadow test with Annen et al.'s plain scaling let light through the walls near their
     back (the step's ramp) and through every umbra (its ringing): +16% there."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("rooms")
     w, h = 128, 96
     kw = dict(seed=0, frames=1)

@@ -6,7 +6,7 @@ import moderngl
 import numpy as np
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler
-from bench.method import resolve_params
+from bench.protocol.method import resolve_params
 from methods.val_clustered.method import LIFT_SCALE, NEAR_SCALE, ClusteredVirtualAreaLights
 from tests.conftest import make_grid_box
 from tests.methods.test_val_clustered import first_hits, orthonormal_basis

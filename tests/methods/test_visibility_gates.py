@@ -7,11 +7,11 @@ import pytest
 import trimesh
 from scipy import ndimage, sparse
 
-from bench.corpus import load_scene
-from bench.corpus.procedural import sphere_inside_indirect
+from bench.model.corpus import load_scene
+from bench.model.corpus.procedural import sphere_inside_indirect
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, read_rgb
-from bench.harness import run_method
-from bench.method import ParamError, SkipRow, resolve_params
+from bench.run.harness import run_method
+from bench.protocol.method import ParamError, SkipRow, resolve_params
 from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.ir_unshadowed.method import InstantRadiosityUnshadowed
 from methods.visibility_gates.method import VisibilityGates, scene_topology

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from bench.corpus import load_scene
-from bench.method import resolve_params
+from bench.model.corpus import load_scene
+from bench.protocol.method import resolve_params
 from methods.visibility_gates.method import VisibilityGates
 from methods.visibility_gates.topology import SurfaceIndex, _halfplane_polygon, _polygon_area, opening_polygon
 from tests.methods.test_visibility_gates import default_topology, render_frame, vpl_sum
@@ -123,7 +123,7 @@ def test_a_word_of_vpls_split_over_draws_sums_the_same(gl_ctx, rooms):
     """llvmpipe's loop limit: with many gate hops (16: 561 loop iterations per VPL on rooms) a
     word of 32 VPLs is summed over several draws, each a range of its bits; on rooms (at most two
     gates on any path) that gives the image of 4 hops, whose draws take whole words."""
-    from bench.harness import run_method
+    from bench.run.harness import run_method
     params = {"vpl_count": 96}
     split = run_method(gl_ctx, VisibilityGates, rooms, "far", 64, 48, dict(params, gate_hops=16), seed=4, frames=1)
     whole = run_method(gl_ctx, VisibilityGates, rooms, "far", 64, 48, dict(params, gate_hops=4), seed=4, frames=1)

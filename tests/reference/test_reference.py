@@ -14,7 +14,7 @@ import pytest
 pytest.importorskip("mitsuba")
 pytestmark = pytest.mark.mitsuba
 
-from bench.scene import Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight  # noqa: E402
+from bench.model.scene import Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight  # noqa: E402
 from reference.api import build_references, get_reference  # noqa: E402
 from tests.conftest import grid_quad, make_open_box, scene_from_parts  # noqa: E402
 
@@ -86,7 +86,7 @@ def closed_box_scene() -> Scene:
                                                   ("three_lights", "side", (40, 56))])
 def test_position_aov_equals_gbuffer(gl_ctx, scene_name, view, size):
     """Same view, same pixel centres: no mirroring, no half-pixel shift, vertical fov."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     from bench.gl import render_gbuffer
     scene = three_light_box() if scene_name == "three_lights" else load_scene(scene_name)
     w, h = size
@@ -136,7 +136,7 @@ def _same_surface(scene, view, w, h, g) -> np.ndarray:
 
 def _diagnose(folder: Path, **images) -> str:
     """Write the compared images as EXRs (called when a comparison fails) and say where."""
-    from bench.imageio import write_exr
+    from bench.model.imageio import write_exr
     for name, img in images.items():
         img = np.asarray(img, dtype=np.float32)
         write_exr(folder / f"{name}.exr", img if img.ndim == 3 else img[..., None])
@@ -145,7 +145,7 @@ def _diagnose(folder: Path, **images) -> str:
 
 @pytest.mark.parametrize("scene_name", ["cornell_spot", "cornell_box", "three_lights"])
 def test_direct_unshadowed_matches_gl(gl_ctx, scene_name, tmp_path):
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     from bench.gl import render_direct, render_gbuffer
     scene = three_light_box() if scene_name == "three_lights" else load_scene(scene_name)
     w, h = 64, 48
@@ -164,7 +164,7 @@ def test_direct_unshadowed_matches_gl(gl_ctx, scene_name, tmp_path):
 @pytest.mark.parametrize("scene_name,bound", [("cornell_spot", 1e-3), ("cornell_box", 2e-2), ("teapot", 1e-2)])
 def test_direct_shadowed_matches_gl(gl_ctx, scene_name, bound, tmp_path):
     """Shadow maps vs shadow rays: the bound is looser where shadow edges cross the image."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     from bench.gl import render_direct, render_gbuffer
     scene = load_scene(scene_name)
     w, h = 64, 48
@@ -183,8 +183,8 @@ def test_direct_shadowed_matches_gl(gl_ctx, scene_name, bound, tmp_path):
 # ---------------------------------------------------------------------------- one bounce, analytic
 @pytest.mark.parametrize("component", ["indirect_visible", "indirect_unshadowed"])
 def test_sphere_inside_analytic(component):
-    from bench.corpus import load_scene
-    from bench.corpus.procedural import sphere_inside_indirect
+    from bench.model.corpus import load_scene
+    from bench.model.corpus.procedural import sphere_inside_indirect
     # light off centre (0.3 R): the direct light varies 3.5x over the sphere, the bounce does not
     scene = load_scene("sphere_inside")
     assert np.linalg.norm(scene.lights[0].position) >= 0.3
@@ -205,7 +205,7 @@ def test_sphere_inside_analytic(component):
 def test_light_sampling_mis_is_unbiased_and_less_noisy(component):
     """BSDF sampling alone and BSDF + light sampling (MIS) estimate the same integral; on the
     spot-lit Cornell box (a small bright patch on the ceiling) MIS is several times less noisy."""
-    from bench.corpus import load_scene
+    from bench.model.corpus import load_scene
     scene = load_scene("cornell_spot")
     bsdf_only = get_reference(scene, "main", 32, 24, component, spp_cap=512, light_sampling=False)
     mis = get_reference(scene, "main", 32, 24, component, spp_cap=512, light_sampling=True)
@@ -254,10 +254,10 @@ def test_indirect_visible_equals_mitsuba_path_tracer_bounce(tmp_path):
 
 # ---------------------------------------------------------------------------- manylights
 def test_manylights_lambert_matches_unshadowed_reference(gl_ctx):
-    from bench.harness import run_method
+    from bench.run.harness import run_method
     from methods.manylights.method import ManyLights
     scene = closed_box_scene()
-    from bench.scene import compute_facts
+    from bench.model.scene import compute_facts
     assert compute_facts(scene).closed
     w, h = 32, 24
     ref = get_reference(scene, "main", w, h, "indirect_unshadowed", spp_cap=2048)
@@ -420,7 +420,7 @@ def test_build_references_parallel_then_cached(tmp_path, monkeypatch, capsys):
 
 # ---------------------------------------------------------------------------- runner wiring
 def _run_cfg(tmp_path, **kw):
-    from bench.runner import RunConfig
+    from bench.run.serial import RunConfig
     from tests.conftest import make_grid_box
     base = dict(scenes=[make_grid_box(4)], methods=["direct", "manylights"], width=32, height=24, frames=1,
                 warmup=1, out=tmp_path / "run", references=True, reference_spp_cap=256, progress=False)
@@ -431,8 +431,9 @@ def _run_cfg(tmp_path, **kw):
 def test_runner_rows_carry_reference_and_refine(gl_ctx, tmp_path, monkeypatch):
     """First pass at 8 spp, then each view's references are refined to 1/10 of the best
     method's MSE (bounded by the cap) and the rows re-evaluated against them."""
-    from bench.imageio import read_exr
-    from bench.runner import ReferenceProvider, run
+    from bench.model.imageio import read_exr
+    from bench.run.references import ReferenceProvider
+    from bench.run.serial import run
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(ReferenceProvider, "REFERENCE_FIRST_PASS_SPP", 8)
     logs = []
@@ -461,7 +462,7 @@ def test_runner_rows_carry_reference_and_refine(gl_ctx, tmp_path, monkeypatch):
 
 
 def test_runner_without_mitsuba_goes_on_with_empty_error_columns(gl_ctx, tmp_path, monkeypatch):
-    from bench.runner import run
+    from bench.run.serial import run
     from reference import env
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(env, "_state", {"error": f"Mitsuba 3 is not installed (test): {env.INSTALL_HINT}"})
@@ -474,7 +475,8 @@ def test_runner_without_mitsuba_goes_on_with_empty_error_columns(gl_ctx, tmp_pat
 
 
 def test_runner_skipped_row_is_not_judged(gl_ctx, tmp_path, monkeypatch):
-    from bench.runner import ReferenceProvider, run
+    from bench.run.references import ReferenceProvider
+    from bench.run.serial import run
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
     monkeypatch.setattr(ReferenceProvider, "REFERENCE_FIRST_PASS_SPP", 4)
     df, _ = run(_run_cfg(tmp_path, params={"manylights": [{"max_triangles": 1}]}, reference_spp_cap=4),
@@ -489,8 +491,8 @@ def test_reference_is_scale_invariant():
     """A scene scaled by 1e-4 (intensities by s^2) gives the same radiance: Mitsuba works in a
     unit-radius frame. In world units its absolute ray-offset floor changed rooms' direct light
     by -27% and its bounce by -17% at this scale (the stress suite's scale=1e-04 row)."""
-    from bench.corpus import load_scene
-    from bench.stress_perturb import scale
+    from bench.model.corpus import load_scene
+    from bench.stress.perturb import scale
     from reference.api import get_reference
     base = load_scene("rooms")
     small = scale(base, 1e-4)

@@ -5,7 +5,7 @@
 #ifndef HEMICUBE_GLSL
 #define HEMICUBE_GLSL
 #include "common.glsl"
-#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "vpl_records.glsl"
 
 // Face f's viewing axis `axis` and image-plane axes `right`, `up`.
 void hemicube_face(int f, vec3 n, out vec3 axis, out vec3 right, out vec3 up) {

@@ -5,7 +5,7 @@
 // stretched over the L light layers side by side. Every texel is equally likely, so VPL k
 // carries the texel's flux times (texel count) / N: an unbiased estimate of the RSM's total.
 // Unlit texels give VPLs of flux 0, which the clustering and the gather skip.
-#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "vpl_records.glsl"
 layout(local_size_x = 64) in;
 uniform sampler2D u_rsm_position;
 uniform sampler2D u_rsm_normal;

@@ -3,7 +3,7 @@
 #ifndef VAL_RECORDS_GLSL
 #define VAL_RECORDS_GLSL
 #include "common.glsl"
-#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "vpl_records.glsl"
 
 struct Val {
     vec4 position;  // xyz centre (mean of its VPL positions), w number of VPLs mapped to it

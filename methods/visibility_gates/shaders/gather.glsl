@@ -6,7 +6,7 @@
 // gates: the segment VPL -> pixel walks from cluster to cluster through the gates it crosses
 // and reaches the pixel's (reaches_through_gates; the final cone test, paper V.D).
 #include "fullscreen.glsl"
-#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "vpl_records.glsl"
 #include "topology.glsl"
 uniform sampler2D u_gbuffer_position;
 uniform sampler2D u_gbuffer_normal;

@@ -5,7 +5,7 @@
 // cluster lies beyond that gate ("all cones created from the combination of the VPL and a
 // visibility gate", paper V.C): conservative for the gather's walk through gates, whose first
 // gate is one of C's. Brute force over the VPLs, as in the paper.
-#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "vpl_records.glsl"
 #include "topology.glsl"
 layout(local_size_x = LA_GROUP) in;
 uniform int u_vpl_count;

@@ -1,6 +1,6 @@
 // Light assignment, step 1: the visibility cluster of every VPL (looked up one voxel off its
 // surface along its normal, the side it emits on).
-#include "../../ir_unshadowed/shaders/vpl_records.glsl"
+#include "vpl_records.glsl"
 #include "topology.glsl"
 layout(local_size_x = 64) in;
 uniform int u_vpl_count;

@@ -1,0 +1,31 @@
+"""`gibench gate BASELINE CANDIDATE`: exit 1 on a regression of time or error (bench.gate)."""
+from __future__ import annotations
+
+from bench.cli import options
+from bench.gate.compare import compare_runs
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("gate", help="compare two runs; non-zero exit on a regression")
+    p.add_argument("baseline", help="run folder, or comma-separated run folders (repetitions; timing needs >= 3)")
+    p.add_argument("candidate", help="run folder, or comma-separated run folders (interleave them with the baseline's)")
+    p.add_argument("--time-threshold", type=float, default=0.10)
+    p.add_argument("--error-threshold", type=float, default=0.05)
+    p.add_argument("--alpha", type=float, default=0.05)
+    p.add_argument("--compare-changed-versions", action="store_true",
+                   help="also compare rows whose method version changed (a PR editing a method), marked 'method changed'")
+    p.add_argument("--relative-to", default=None, metavar="METHOD",
+                   help="gate times relative to METHOD's time on the same view in the same run (cancels machine load)")
+    p.add_argument("--correction", choices=("holm", "bh"), default="holm",
+                   help="multiple-testing correction over rows: holm (family-wise error, default) or bh (FDR)")
+    p.add_argument("--min-runs", type=int, default=3, help="runs per side needed to test timing (default 3, >= 2)")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    result = compare_runs(options.csv(args.baseline), options.csv(args.candidate), time_threshold=args.time_threshold,
+                          error_threshold=args.error_threshold, alpha=args.alpha,
+                          compare_changed_versions=args.compare_changed_versions, relative_to=args.relative_to,
+                          correction=args.correction, min_runs=args.min_runs)
+    print(result.markdown())
+    return result.exit_code

@@ -1,0 +1,139 @@
+"""The run's manifest (`manifest.json`), and the only code that writes it.
+
+It records the machine (GL renderer, CPU, stage clock), package versions, the git commit, the
+arguments, the scene facts and purposes, and what each method of the run declared when it ran
+(`methods`: version, summary, stages, needs, parameter declarations and defaults, quality
+ladder), so that a report of an old run reads its labels and defaults from the run folder, not
+from today's code. After the rows it adds the wall time of each phase, the shared passes'
+measurements, peak memory per row and the harness overhead; `gibench report` adds its own phase.
+"""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import os
+import platform
+import sys
+from importlib.metadata import PackageNotFoundError, version
+from pathlib import Path
+
+from bench.gl import gl_info
+from bench.gl.profiler import default_clock
+from bench.protocol import results as store
+from bench.protocol.registry import load_method
+from bench.protocol.versioning import git_commit, method_version
+from bench.run.config import RunConfig, effective_shadow_resolution
+
+MANIFEST = "manifest.json"
+PACKAGES = ("gibench", "moderngl", "numpy", "pandas", "mitsuba", "drjit", "OpenImageIO", "trimesh")
+
+
+def machine_info(ctx) -> dict:
+    cpu = platform.processor() or ""
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    info = gl_info(ctx)
+    info["stage_clock"] = default_clock(ctx)
+    info.update({"cpu": cpu, "cores": os.cpu_count(), "python": sys.version.split()[0],
+                 "platform": platform.platform()})
+    return info
+
+
+def package_versions() -> dict:
+    out = {}
+    for pkg in PACKAGES:
+        try:
+            out[pkg] = version(pkg)
+        except PackageNotFoundError:
+            out[pkg] = None
+    return out
+
+
+def _plain(value):
+    """A declaration value as JSON can hold it (tuples as lists, numpy scalars as numbers)."""
+    if isinstance(value, (list, tuple)):
+        return [_plain(v) for v in value]
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if hasattr(value, "item"):
+        return value.item()
+    return value
+
+
+def method_declaration(cls) -> dict:
+    """What a method class declares, as the manifest records it."""
+    params = {name: {"default": _plain(p.default), "low": _plain(p.low), "high": _plain(p.high),
+                     "choices": _plain(p.choices), "quality": bool(p.quality), "doc": p.doc}
+              for name, p in cls.params.items()}
+    return {"version": method_version(cls), "summary": cls.summary, "stages": list(cls.stages),
+            "needs": sorted(cls.needs), "defaults": {k: v["default"] for k, v in params.items()},
+            "ladder": [_plain(dict(r)) for r in getattr(cls, "ladder", ())], "params": params}
+
+
+def method_declarations(methods) -> dict:
+    """{name: declaration} of the run's methods that load (a failing one is a failed row, not here)."""
+    out = {}
+    for name in methods:
+        try:
+            out[name] = method_declaration(load_method(name))
+        except Exception:
+            continue
+    return out
+
+
+def write_manifest(run_dir: Path, ctx, cfg: RunConfig, scenes: dict, facts: dict) -> None:
+    manifest = {
+        "schema_version": store.SCHEMA_VERSION,
+        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+        "git_commit": git_commit(),
+        "machine": machine_info(ctx),
+        "versions": package_versions(),
+        "arguments": {k: (str(v) if isinstance(v, Path) else v) for k, v in cfg.__dict__.items()
+                      if k != "scenes"} | {"scenes": [getattr(s, "name", s) for s in cfg.scenes]},
+        "scene_facts": {name: f.to_dict() for name, f in facts.items()},
+        "scene_purposes": {name: s.purpose for name, s in scenes.items()},
+        "shadow_resolution": effective_shadow_resolution(cfg),
+        "methods": method_declarations(cfg.methods),
+    }
+    store.atomic_write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2, default=str))
+
+
+def read_manifest(run_dir: Path) -> dict | None:
+    try:
+        return json.loads((Path(run_dir) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _update(run_dir: Path, fn) -> None:
+    manifest = read_manifest(run_dir)
+    if manifest is None:
+        return
+    fn(manifest)
+    store.atomic_write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2, default=str))
+
+
+def record_phases(run_dir: Path, phases: dict, shared_summary: dict, rows: list[dict]) -> None:
+    """Add the wall time of each phase, the shared passes' measurements, each rendered row's peak
+    memory and the harness overhead over the rendered rows to the manifest."""
+    def add(manifest):
+        manifest["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
+        if shared_summary:   # each view's shared passes, measured once, whose medians rows add
+            manifest["shared_passes"] = shared_summary
+        manifest["peak_rss_mb"] = {f"{r['scene']}/{r['view']}/{r['method']}@{r.get('image_dir', '').rsplit('/', 1)[-1]}":
+                                   round(float(r["peak_rss_mb"]), 1) for r in rows if "peak_rss_mb" in r}
+        rendered = [r for r in rows if r.get("status") == "ok" and "row_wall_ms" in r]
+        total = sum(r["row_wall_ms"] for r in rendered)
+        if total > 0:
+            manifest["harness_overhead"] = round(phases["rows_other"] * 1e3 / total, 4)
+    _update(run_dir, add)
+
+
+def record_phase(run_dir: Path, phase: str, seconds: float) -> None:
+    """Add one phase's wall time (e.g. the report, built after the run) to the manifest."""
+    _update(run_dir, lambda m: m.setdefault("phases_s", {}).__setitem__(phase, round(seconds, 3)))

@@ -1,0 +1,340 @@
+"""The runner: scenes x views x methods x parameter sets -> result rows, images, references.
+
+Rows run grouped by scene and view (bench.run.plan). Each scene is uploaded once (GpuScene). Each
+view's shared passes (GBuffer, shadow maps, direct light, RSM) are built once with the union of
+the needs of the view's rows still to render, rendered and measured once, and lent to every
+method and rung of the view (bench.run.execute.SharedPassCache): a row's frames render only its
+method, and its frame time adds the measured medians of the shared stages it needs (recorded in
+the row's `extra.shared_*` and in the manifest's `shared_passes`). Every row is rendered by
+bench.run.execute.render_outcome (prepare untimed, warm-up + K timed frames), here or in a Dask
+worker (bench.run.cluster); the runner writes linear EXRs of direct, indirect and combined and
+appends one row to the run's results table (written atomically after every row). The row cache
+(bench.run.row_cache) means a row whose scene content, method version, parameters, resolution,
+frames, seed and machine are unchanged is not re-run (`force=True` re-runs); an interrupted run
+resumes from its results table (bench.run.plan.RunState). A method that fails (to load, to
+prepare, to render) becomes a `failed: <reason>` row and the run goes on with the others.
+
+Trust rules:
+* A cache hit takes the measured values from the entry and every label (scene name, view, paths)
+  from the current run; an entry that fails its checks is a miss, evicted with a one-line warning.
+* Scene names are unique within a run (two scenes named alike are bad input, not a silent
+  overwrite); a hit keyed on scene *content* therefore never mislabels a row.
+* An existing `--out` is merged, not replaced (bench.run.plan.merge_existing).
+* Every `--param` is checked for every method before the first row; a `--param` of a method
+  that is not in the run is bad input.
+"""
+from __future__ import annotations
+
+import os
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+from tqdm import tqdm
+
+from bench import gl
+from bench.analysis.summary import write_summary
+from bench.gl.profiler import default_clock
+from bench.model.corpus import load_scene
+from bench.model.imageio import write_exr
+from bench.model.scene import Scene, compute_facts
+from bench.protocol import results as store
+from bench.protocol.method import resolve_params
+from bench.protocol.registry import load_method
+from bench.protocol.versioning import method_version
+from bench.protocol.vocabulary import Status, failure_reason, row_identity
+from bench.run import cluster, plan
+from bench.run.config import RunConfig, auto_shadow_resolution, effective_shadow_resolution, expand_param_sets  # noqa: F401  (the run's vocabulary)
+from bench.run.execute import SharedPassCache, render_outcome
+from bench.run.manifest import record_phases, write_manifest
+from bench.run.references import ReferenceProvider
+from bench.run.row_cache import RowCache, row_cache_key
+
+
+class Runner:
+    """Runs a RunConfig; `run()` returns the results DataFrame."""
+
+    def __init__(self, cfg: RunConfig, log=print):
+        cfg.validate()
+        self.cfg = cfg
+        self.log = log
+        self.resolved = self._validate_params()
+        self.run_dir = Path(cfg.out) if cfg.out else plan.default_run_dir()
+        plan.prepare_run_dir(self.run_dir)
+        self.rows: list[dict] = []
+        self.kept: list[dict] = []   # rows of the folder this run does not produce (merge)
+        self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
+        self.cache = RowCache(log)
+        self.state = plan.RunState(self.run_dir)
+        self._view_lit: dict = {}   # (scene, view) -> did any rendered row have light
+        self._gpu = None            # (scene name, GpuScene): uploaded once per scene, shared by its rows
+        self.shared = SharedPassCache()
+        self.shared_summary: dict = {}  # "scene/view" -> variant -> measurement summary (manifest)
+        self.scene_refs: dict = {}  # scene name -> what a worker loads it from (corpus name / path / Scene)
+        # wall seconds per phase of the run (the manifest records them)
+        self.phases = {"setup": 0.0, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0, "rows_other": 0.0,
+                       "references": 0.0, "metrics": 0.0}
+
+    def _validate_params(self) -> dict:
+        """Every --param of every method, checked before the first row: {(method, i): resolved}."""
+        cfg = self.cfg
+        stray = sorted(set(cfg.params) - set(cfg.methods))
+        if stray:
+            raise ValueError(f"--param given for method(s) {', '.join(stray)} not in this run "
+                             f"(methods: {', '.join(cfg.methods)})")
+        resolved = {}
+        for method in cfg.methods:
+            try:
+                cls = load_method(method)
+            except Exception:  # a method that fails to load becomes a failed row (recorded, the run goes on)
+                continue
+            for i, pset in enumerate(expand_param_sets(cfg, method)):
+                resolved[(method, i)] = resolve_params(cls, pset)
+        return resolved
+
+    def _load_scenes(self) -> dict:
+        """Corpus names, .toml scene files, or Scene objects (tests, scripts)."""
+        scenes, given = {}, {}
+        for item in self.cfg.scenes:
+            scene = item if isinstance(item, Scene) else load_scene(item)
+            what = str(item) if not isinstance(item, Scene) else (scene.source or "a Scene object")
+            if scene.name in scenes:
+                raise ValueError(f"two scenes are named '{scene.name}' ({given[scene.name]} and {what}): "
+                                 f"scene names must be unique within a run")
+            scenes[scene.name], given[scene.name] = scene, what
+            self.scene_refs[scene.name] = item if isinstance(item, str) else scene
+        return scenes
+
+    def _job_identity(self, scene, job) -> tuple:
+        """(row identity, image dir) of a job, as the row will record them."""
+        params = self.resolved.get((job.method, job.index), job.params)
+        row = {"scene": scene.name, "view": job.view, "method": job.method, "params": store.params_json(params),
+               "seed": self.cfg.seed, "width": self.cfg.width, "height": self.cfg.height}
+        folder = job.method
+        if (job.method, job.index) in self.resolved:
+            folder = plan.image_folder(job.method, params, load_method(job.method))
+        return row_identity(row), str(Path("images") / scene.name / job.view / folder)
+
+    def save(self) -> None:
+        store.save_results(self.run_dir, self.kept + self.rows)
+
+    # ------------------------------------------------------------------ main loop
+    def run(self):
+        cfg = self.cfg
+        t_setup = time.perf_counter()
+        ctx = gl.create_context()
+        scenes = self._load_scenes()
+        facts = {name: compute_facts(s) for name, s in scenes.items()}
+        write_manifest(self.run_dir, ctx, cfg, scenes, facts)
+        if cfg.out is None or self.run_dir.parent.name == "runs":
+            plan.point_latest(self.run_dir)
+        renderer = ctx.info.get("GL_RENDERER", "")
+        jobs = plan.make_jobs(cfg, scenes)
+        existing = plan.existing_rows(self.run_dir)
+        self.kept = plan.merge_existing(self.run_dir, existing, [self._job_identity(scenes[j.scene], j) for j in jobs])
+        if self.kept:
+            self.log(f"gibench: {self.run_dir}: keeping {len(self.kept)} row(s) of earlier runs "
+                     f"(other methods, resolutions or parameters)")
+        invocation = plan.invocation_hash(cfg, scenes)
+        resumable = self.state.resumable(existing, invocation, cfg.force)
+        self.state.start(invocation)
+
+        progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr) if cfg.progress else None
+        references = ReferenceProvider(self.run_dir, cfg, self.log) if cfg.references else None
+        self.phases["setup"] += time.perf_counter() - t_setup
+        try:
+            if cfg.scheduler or cfg.workers:
+                cluster.run_rows(self, ctx, scenes, jobs, renderer, resumable, references, progress)
+            else:
+                self._run_serial(ctx, scenes, facts, jobs, renderer, resumable, references, progress)
+        finally:
+            if progress is not None:
+                progress.close()
+            self._release_gpu()
+        for (scene_name, view), lit in self._view_lit.items():
+            if not lit:
+                self.log(f"gibench: warning: {scene_name}/{view}: every method rendered an all-black image "
+                         f"(does camera '{view}' see a lit surface?)")
+        if references is not None:
+            references.finish()
+            self.phases["references"] += references.seconds["references"]
+            self.phases["metrics"] += references.seconds["metrics"]
+        df = store.save_results(self.run_dir, self.kept + self.rows)
+        record_phases(self.run_dir, self.phases, self.shared_summary, self.rows)
+        self.state.finish()
+        write_summary(self.run_dir)
+        return df
+
+    def _run_serial(self, ctx, scenes, facts, jobs, renderer, resumable, references, progress) -> None:
+        for group in plan.view_groups(jobs):
+            # plan the view's rows first: its shared passes serve the rows that still render
+            plans = []
+            for job in group:
+                t_plan = time.perf_counter()
+                planned = self.plan_row(ctx, scenes[job.scene], job, renderer, resumable)
+                plans.append((planned, time.perf_counter() - t_plan))
+            first = group[0]
+            self.shared.expect(SharedPassCache.view_key(scenes[first.scene], self.cfg.seed, self.cfg, first.view),
+                               [p["cls"] for p, _ in plans if not p["done"]])
+            for job, (planned, plan_s) in zip(group, plans):
+                if progress is not None:
+                    progress.set_description(f"{job.scene}/{job.view}/{job.method}")
+                t_row = time.perf_counter()
+                row = self._run_row(ctx, scenes[job.scene], facts[job.scene], job.view, planned)
+                if references is not None and not Status.is_failed(row["status"]):
+                    references.evaluate(row, scenes[job.scene], job.view)
+                self._account_row(row, plan_s + time.perf_counter() - t_row)
+                self.rows.append(row)
+                self.record(row)
+                if progress is not None:
+                    progress.update(1)
+
+    def record(self, row: dict) -> None:
+        """A row is done: save the table, mark it in the run state (the one place either happens)."""
+        self.save()
+        self.state.mark_done(row)
+
+    def _run_row(self, ctx, scene, facts, view, planned) -> dict:
+        if planned["done"]:
+            return planned["row"]
+        gpu = self._scene_gpu(ctx, scene, facts)
+        shared, build = self.shared.get(ctx, gpu, self.cfg, view, planned["cls"])
+        if build is not None:
+            self.account_shared(build)
+        outcome = render_outcome(ctx, gpu, self.cfg, planned["cls"], scene, facts, view, planned["params"],
+                                 shared=shared)
+        row = self.finish_row(planned, outcome)
+        row["_shared_seconds"] = build.seconds if build is not None else 0.0   # the view's, not the row's own time
+        return row
+
+    def account_shared(self, build) -> None:
+        """A view's shared passes were built (here or on a worker): their time and measurement."""
+        if build.failure is not None:
+            self.log(f"gibench: {build.view_key}: shared passes failed ({build.failure}); each row renders its own")
+            return
+        self.phases["timing"] += build.frames_ms / 1e3
+        self.phases["precompute"] += max(build.seconds - build.frames_ms / 1e3, 0.0)
+        self.shared_summary.setdefault(build.view_key, {})[build.variant] = build.summary
+
+    # ------------------------------------------------------------------ one row: plan, finish
+    def plan_row(self, ctx, scene, job, renderer, resumable) -> dict:
+        """The row's labels, key and image folder; a resumed, cached or failed-to-load row is done here
+        ({"done": True, "row": row}), else {"done": False, ...} with what rendering it needs."""
+        cfg = self.cfg
+        view, method_name = job.view, job.method
+        row = {"scene": scene.name, "scene_hash": scene.content_hash(), "view": view, "method": method_name,
+               "params": store.params_json(job.params), "seed": cfg.seed, "width": cfg.width, "height": cfg.height,
+               "frames": cfg.frames, "warmup": cfg.warmup}
+        try:
+            cls = load_method(method_name)
+            resolved = self.resolved.get((method_name, job.index))
+            params = resolved if resolved is not None else resolve_params(cls, job.params)
+            version = method_version(cls)
+        except Exception as exc:  # load failure or bad parameter: recorded, the run goes on
+            return {"done": True, "row": self._failed(row, exc)}
+        row["params"] = store.params_json(params)
+        row["method_version"] = version
+        key = row_cache_key(scene, view, method_name, version, params, cfg, renderer, default_clock(ctx))
+        row["row_key"] = key
+        image_dir = self.run_dir / "images" / scene.name / view / plan.image_folder(method_name, params, cls)
+        row["image_dir"] = str(image_dir.relative_to(self.run_dir))
+
+        if (key, row["image_dir"]) in resumable and (image_dir / "combined.exr").is_file():
+            self.counts["resumed"] += 1
+            return {"done": True, "row": dict(resumable[(key, row["image_dir"])], **row)}
+        cached = None if cfg.force else self.cache.restore(key, image_dir)
+        if cached is not None:
+            cached.update(row)  # measured values from the cache, every label from this run
+            cached["status"] = Status.CACHED
+            self.counts["cached"] += 1
+            return {"done": True, "row": cached}
+        return {"done": False, "row": row, "cls": cls, "params": params, "key": key, "image_dir": image_dir,
+                "scene": scene, "view": view}
+
+    def finish_row(self, planned: dict, outcome: dict) -> dict:
+        """Write a rendered row's images and cache entry (or record its skip / failure)."""
+        row, image_dir = planned["row"], planned["image_dir"]
+        if outcome["status"] == Status.SKIPPED:
+            row["status"] = Status.skipped(outcome["reason"])
+            self.counts["skipped"] += 1
+            return row
+        if outcome["status"] == Status.FAILED:
+            return self._failed(row, RuntimeError(outcome["reason"]))
+        images = outcome["images"]
+        for comp, img in images.items():
+            write_exr(image_dir / f"{comp}.exr", img)
+        # a view is suspicious only when no method lights it: `direct` alone is black by design
+        # where every lit surface is off screen (hidden_bounce, the far room of rooms)
+        view_key = (row["scene"], row["view"])
+        self._view_lit[view_key] = self._view_lit.get(view_key, False) or bool(np.any(images["combined"] > 0))
+        row.update(outcome["measured"])
+        self.counts["ok"] += 1
+        self.cache.store(planned["key"], row, image_dir)
+        return row
+
+    def _failed(self, row: dict, exc: Exception) -> dict:
+        reason = failure_reason(exc)
+        row["status"] = Status.failed(reason)
+        self.counts["failed"] += 1
+        self.log(f"gibench: {row['scene']}/{row['view']}/{row['method']} failed: {reason}")
+        if os.environ.get("GIBENCH_DEBUG"):
+            traceback.print_exc()
+        return row
+
+    # ------------------------------------------------------------------ shared scene upload, accounting
+    def _scene_gpu(self, ctx, scene, facts):
+        """The scene's GpuScene, uploaded once and shared by every row of the scene (rows run
+        grouped by scene); the upload is a phase of its own, not part of any row's overhead."""
+        if self._gpu is not None and self._gpu[0] == scene.name:
+            return self._gpu[1]
+        self._release_gpu()
+        t0 = time.perf_counter()
+        gpu = gl.GpuScene(ctx, scene, seed=self.cfg.seed, facts=facts)
+        ctx.finish()
+        self.phases["scene_upload"] += time.perf_counter() - t0
+        self._gpu = (scene.name, gpu)
+        return gpu
+
+    def _release_gpu(self) -> None:
+        self.shared.release()
+        if self._gpu is not None:
+            self._gpu[1].release()
+            self._gpu = None
+
+    def _account_row(self, row: dict, seconds: float) -> None:
+        """Split a rendered row's wall time into the method's part (prepare, every frame) and the
+        harness's (read-back, EXR and cache writes, bookkeeping); reference fetches and metrics
+        are phases of their own. `harness_overhead` = the harness's part / the row's time."""
+        reference_s = float(row.pop("_reference_seconds", 0.0))
+        shared_s = float(row.pop("_shared_seconds", 0.0))   # the view's shared passes: timing + precompute
+        if row.get("status") != Status.OK:
+            return
+        self.account_method(row, seconds - reference_s - shared_s)
+
+    def account_method(self, row: dict, row_s: float) -> None:
+        """Charge a rendered row's prepare and frames to their phases, the rest of `row_s` to the harness."""
+        method_s = (float(row.get("prepare_ms", 0.0)) + float(row.get("frames_total_ms", 0.0))) / 1e3
+        self.phases["precompute"] += float(row.get("prepare_ms", 0.0)) / 1e3
+        self.phases["timing"] += float(row.get("frames_total_ms", 0.0)) / 1e3
+        self.phases["rows_other"] += max(row_s - method_s, 0.0)
+        row["row_wall_ms"] = row_s * 1e3
+        row["harness_overhead"] = max(row_s - method_s, 0.0) / row_s if row_s > 0 else float("nan")
+
+    def summary(self) -> str:
+        c = self.counts
+        total = sum(c.values())
+        parts = [f"{c['ok']} rendered", f"{c['cached']} from cache", f"{c['resumed']} resumed",
+                 f"{c['skipped']} skipped", f"{c['failed']} failed"]
+        msg = f"{total} rows: " + ", ".join(parts)
+        if total and c["ok"] == 0 and c["failed"] == 0:
+            msg += " (nothing re-run: every row was unchanged)"
+        return msg
+
+
+def run(cfg: RunConfig, log=print):
+    """Run and return (DataFrame, Runner)."""
+    runner = Runner(cfg, log=log)
+    df = runner.run()
+    return df, runner
