@@ -48,7 +48,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-COMPONENTS = ("direct", "indirect_visible", "indirect_unshadowed")
+from bench.protocol.vocabulary import REFERENCE_COMPONENTS
+
+COMPONENTS = REFERENCE_COMPONENTS   # what a reference can be asked for (the vocabulary's order)
 # calibration only: direct light without shadow rays (to compare with the GL pass minus shadow maps)
 EXTRA_COMPONENTS = ("direct_unshadowed",)
 DEFAULT_MAX_LAYERS = 1024

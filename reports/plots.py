@@ -6,9 +6,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import matplotlib
 import numpy as np
 import pandas as pd
+from matplotlib.figure import Figure
 
+from bench.analysis.compare import default_row
 from bench.analysis.curves import curve_for, mitsuba_seconds_for_error, pareto_front
 
 ERROR_PANELS = (("mse.indirect", "indirect (vs Mitsuba, no indirect visibility)"),
@@ -16,7 +19,6 @@ ERROR_PANELS = (("mse.indirect", "indirect (vs Mitsuba, no indirect visibility)"
 
 
 def _save(fig, path: Path) -> Path:
-    import matplotlib
     path.parent.mkdir(parents=True, exist_ok=True)
     with matplotlib.rc_context({"svg.hashsalt": "gibench", "svg.fonttype": "path"}):
         fig.savefig(path, format="svg", metadata={"Date": None})
@@ -30,7 +32,6 @@ def _finite(values) -> np.ndarray:
 
 def time_error_plot(table: pd.DataFrame, curves: dict, scene: str, view: str, path: Path) -> Path | None:
     """Log-log frame time vs MSE of every method variant of one view; None when no error exists."""
-    from matplotlib.figure import Figure
     rows = table[(table["scene"] == scene) & (table["view"] == view)]
     panels = [(col, title) for col, title in ERROR_PANELS
               if col in rows.columns and _finite(rows[col]).any() and _finite(rows["frame_ms"]).any()]
@@ -89,7 +90,6 @@ def time_error_plot(table: pd.DataFrame, curves: dict, scene: str, view: str, pa
 
 def stage_plot(rows: pd.DataFrame, stages: list[str], path: Path, title: str) -> Path | None:
     """Horizontal stacked bars of the median GPU time of each stage, one bar per method variant."""
-    from matplotlib.figure import Figure
     if rows.empty or not stages:
         return None
     labels = list(rows["label"])
@@ -119,7 +119,6 @@ def stage_plot(rows: pd.DataFrame, stages: list[str], path: Path, title: str) ->
 def scaling_fits(table: pd.DataFrame, triangles: dict, series_prefix: str = "highpoly_") -> dict:
     """method -> (triangle counts, median frame ms, fitted log-log slope or NaN) over the high-poly
     series (each method's default rung; the mean over a scene's views)."""
-    from bench.analysis.compare import default_row
     rows = table[table["scene"].astype(str).str.startswith(series_prefix)]
     out = {}
     for method, g in rows.groupby("method", sort=True):
@@ -141,7 +140,6 @@ def scaling_fits(table: pd.DataFrame, triangles: dict, series_prefix: str = "hig
 
 def scaling_plot(fits: dict, path: Path) -> Path | None:
     """Log-log frame time vs triangle count per method, with the fitted slope in the legend."""
-    from matplotlib.figure import Figure
     if not fits:
         return None
     fig = Figure(figsize=(5.2, 3.6), layout="constrained")

@@ -2,7 +2,7 @@
 """Convert the staged real scenes to gibench's compact mesh archives under `scenes/<name>/`.
 
 Reads each scene's mesh from the staged copies (default `/work/shared/data/scenes`, see its
-README for provenance and the trimesh 5.2.0 caveats) with `bench.model.scenefile.read_mesh`
+README for provenance and the trimesh 5.2.0 caveats) with `bench.model.meshfile.read_mesh`
 (trimesh, `force='scene'`, geometries concatenated, float MTL Kd, textures skipped, duplicate
 triangles dropped, shading normals from the file or with a 45 degree crease angle) and writes:
 
@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from bench.model.scene import triangle_areas  # noqa: E402
-from bench.model.scenefile import DEFAULT_ALBEDO, DEFAULT_CREASE_ANGLE_DEG, read_mesh, write_mesh_npz  # noqa: E402
+from bench.model.meshfile import DEFAULT_ALBEDO, DEFAULT_CREASE_ANGLE_DEG, read_mesh, write_mesh_npz  # noqa: E402
 
 
 @dataclass(frozen=True)
@@ -140,7 +140,7 @@ Written by `scripts/import_real_scenes.py` (do not edit by hand; re-run the scri
 * Licence: {scene.licence}.
 * Units: {scene.units}. Bounding box (file units): {meta['bbox_min']} -> {meta['bbox_max']}.
 * Loaded with {meta['loader']} (`force='scene'`, `process=False`, geometries concatenated,
-  materials per geometry) by `bench.model.scenefile.read_mesh`.
+  materials per geometry) by `bench.model.meshfile.read_mesh`.
 * Triangles: {file_triangles if file_triangles >= 0 else len(mesh.faces) + mesh.dropped_duplicates:,} in the file;
   {mesh.dropped_duplicates:,} duplicated triangles dropped (same three positions, either winding);
   {len(mesh.faces):,} stored, of which {meta['degenerate']:,} have zero area (kept here, dropped by `Scene.build`).
@@ -151,7 +151,7 @@ Written by `scripts/import_real_scenes.py` (do not edit by hand; re-run the scri
   as uint16 fixed point (Kd x 65535). **Textures are skipped: albedo is Kd only** (no texture,
   bump, alpha or emission maps; `Ke` emitters become ordinary diffuse surfaces).
 * Notes: {scene.notes}
-* Archive: `mesh.npz`, {size / 1e6:.2f} MB (fields documented in `bench.model.scenefile.read_mesh_npz`).
+* Archive: `mesh.npz`, {size / 1e6:.2f} MB (fields documented in `bench.model.meshfile.read_mesh_npz`).
 
 | material | Kd | triangles | non-degenerate |
 |---|---|---:|---:|

@@ -3,7 +3,7 @@
 `count_vpls_reaching` (geometry only, numpy): Alg. 1 run on the scene's triangles (divergent
 ones cut into the m^2 equal pieces the divergent pass makes regular), and per receiver point
 the number of level-k VPLs whose f^k is non-zero there: the count that eq. 1 and Fig. 10 say
-grows with N_avg (levels.py, correction 3).
+grows with N_avg (methods/flc/levels.py, correction 3).
 
 Both work on the exact many-lights sum (eq. 4 with eq. 6's lobe, one VPL per triangle at its
 centroid, shadowed direct radiosity from `manylights`' own compute pass, its record layout), split per pair
@@ -24,7 +24,7 @@ with P_t = ceil(A_t / S_bar_N) pieces for a divergent triangle (1 if regular; eq
 assumed, each drawn independently). VPL jitter and interleaved sampling add a little more. When the lit surface holds
 only a few top-level VPLs (a spot light on a small patch, receivers far from it), this is large
 and a render's error is spread over much of the frame by a few powerful VPLs: noise, not a
-bias (see method.py).
+bias (see methods/flc/method.py and NOTES.md).
 """
 from __future__ import annotations
 
@@ -32,19 +32,18 @@ import numpy as np
 
 from bench.analysis import metrics
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, check_gl
+from bench.model.scene import Scene, compute_facts
 from bench.protocol.method import resolve_params
-from bench.model.scene import compute_facts
-
+from bench.run.harness import run_method
 from methods.flc.levels import FlcLevels
+from methods.flc.method import ForwardLightCuts, lit_area_for, median_view_distance, near_radius
+from methods.manylights.method import ManyLights
 
 
 def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: float, chunk: int):
     """(facts, areas, chunks, median view distance) for the lit centroid VPLs of `manylights`' compute pass: the scene
     facts, the VPLs' triangle areas, and an iterator over pixel chunks of (contrib (pixels, vpls),
     summed over rgb with rho_x / pi; d (pixels, vpls))."""
-    from methods.flc.method import median_view_distance
-    from methods.manylights.method import ManyLights
-
     facts = compute_facts(scene)
     gpu = GpuScene(ctx, scene, facts=facts)
     view = gpu.view(camera, width, height)
@@ -98,7 +97,6 @@ def _exact_pairs(ctx, scene, camera: str, width: int, height: int, eps_rel: floa
 def _levels(facts, flc_params: dict | None, scene, seen: float | None = None) -> tuple[FlcLevels, dict]:
     """FLC's levels for `flc_params` as `prepare` makes them; `seen` is the median view distance
     (dnear_rule "view"; None when there is no view)."""
-    from methods.flc.method import ForwardLightCuts, lit_area_for, near_radius
     p = resolve_params(ForwardLightCuts, flc_params)
     if p["dnear_rule"] == "view" and seen is None:
         raise ValueError("flc analysis: dnear_rule 'view' needs a view (use 'lit' or 'scene' here)")
@@ -160,7 +158,6 @@ def refined_scene(scene, max_edge: float):
     recursively) until their edges are <= max_edge, for a `manylights` reference of a scene with
     huge triangles (big_floor: one VPL per triangle). Pieces no light reaches (outside every
     spot's cone) stay whole: their VPLs carry no power whatever their size."""
-    from bench.model.scene import Scene
     big = scene.areas() > 0.5 * max_edge ** 2
     tri = scene.vertices[scene.faces[big]].astype(np.float64)
     parent = np.nonzero(big)[0]
@@ -260,7 +257,7 @@ def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=r
                        flc_params: dict | None = None, jitter_frames: int = 16, reference_seed: int = 99,
                        reference_scene=None, reference_image=None, mitsuba=None) -> dict:
     """One FLC frame per seed against `manylights` with the FLC lobe and `jitter_frames` jittered
-    VPL positions (the sum FLC is unbiased for; see method.py), rendered on `reference_scene` if
+    VPL positions (the sum FLC is unbiased for; see methods/flc/method.py), rendered on `reference_scene` if
     given (the same surfaces finer cut: `manylights` has one VPL per triangle, so a scene of huge
     triangles needs many jitter frames), or `reference_image` (H x W x 3) when given (a reference
     already rendered: returned as 'reference'). Returns per-seed 'ratio' (image
@@ -272,10 +269,6 @@ def single_frame_study(ctx, scene, camera: str, width: int, height: int, seeds=r
     0 and no `reference_image` there is no `manylights` reference (only 'splat_ms' and what follows).
     `mitsuba` (a `reference.api.get_reference` result: .mean, .coverage) adds per-seed
     'mitsuba_relmse' (the report's relmse.indirect) and 'mitsuba_relmse_direct' (`direct`'s)."""
-    from bench.run.harness import run_method
-    from methods.flc.method import ForwardLightCuts
-    from methods.manylights.method import ManyLights
-
     facts = compute_facts(scene)
     ref_scene = scene if reference_scene is None else reference_scene
     if reference_image is not None:

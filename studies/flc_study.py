@@ -1,11 +1,11 @@
-"""FLC's single-frame study at its defaults (issue 10), the manual's tables from one command:
+"""FLC's single-frame study at its defaults (issue 10), the tables of methods/flc/NOTES.md from one command:
 
     python -m studies.flc_study --res 320x180 --seeds 8 --jitter-frames 4 \\
         cornell_spot hidden_bounce big_floor rooms rooms:far sphere_inside lit_wall_corner cornell_box
 
 Per scene[:view], one FLC frame per seed (0 .. seeds-1) at the defaults (or `--param k=v`):
 - against jittered `manylights` with the flc lobe (the sum FLC estimates; big_floor's on
-  `analysis.refined_scene(scene, 0.5)`, its 80 m floor is 2 triangles): the image-mean ratio, its
+  `flc_analysis.refined_scene(scene, 0.5)`, its 80 m floor is 2 triangles): the image-mean ratio, its
   relative spread across seeds (std / mean), the per-pixel relMSE (`bench.analysis.metrics.relmse`) and
   what a black image (`direct`) scores; skipped with `--jitter-frames 0` (on the real scenes
   `manylights` sums 10^5 triangles at every pixel: use a small `--res` there);
@@ -24,13 +24,15 @@ import json
 import numpy as np
 
 from bench.analysis import metrics
-from bench.model.corpus import load_scene
 from bench.gl.context import create_context
-from bench.run.harness import run_method
+from bench.model.corpus import load_scene
 from bench.model.scene import compute_facts
-
-from studies.flc_analysis import refined_scene, single_frame_study
+from bench.run.harness import run_method
 from methods.flc.method import ForwardLightCuts
+from methods.manylights.method import ManyLights
+from reference.api import get_reference
+from reference.env import ReferenceUnavailable
+from studies.flc_analysis import refined_scene, single_frame_study
 
 OWN_STAGES = ForwardLightCuts.stages
 
@@ -40,8 +42,6 @@ def _own_ms(result) -> float:
 
 
 def _mitsuba(scene, view, width, height):
-    from reference.api import get_reference
-    from reference.env import ReferenceUnavailable
     try:
         return get_reference(scene, view, width, height, "indirect_unshadowed", spp_cap=1024)
     except ReferenceUnavailable:
@@ -49,7 +49,7 @@ def _mitsuba(scene, view, width, height):
 
 
 def study_view(ctx, name: str, view: str, width: int, height: int, seeds, params: dict, jitter_frames: int) -> dict:
-    """The figures of one view (see the module docstring), from `analysis.single_frame_study`."""
+    """The figures of one view (see the module docstring), from `flc_analysis.single_frame_study`."""
     scene = load_scene(name)
     study = single_frame_study(ctx, scene, view, width, height, seeds, params, jitter_frames=jitter_frames,
                                reference_scene=_reference_scene(scene, name),
@@ -72,7 +72,6 @@ def _reference_scene(scene, name: str):
 
 def _manylights(ctx, scene, name: str, view: str, width: int, height: int, jitter_frames: int) -> np.ndarray:
     """Jittered `manylights` with the flc lobe: the sum FLC estimates (big_floor's on its refined scene)."""
-    from methods.manylights.method import ManyLights
     ref_scene = _reference_scene(scene, name)
     return run_method(ctx, ManyLights, ref_scene, view, width, height,
                       {"emission": "flc", "jitter_frames": jitter_frames}, seed=99, frames=1,

@@ -19,7 +19,15 @@ SSDO's indirect and of this bound to the `indirect_unshadowed` reference.
 """
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
+
+from bench.gl import render_gbuffer
+from bench.gl.context import create_context
+from bench.model.corpus import load_scene
+from bench.model.imageio import read_exr
 
 EPS_REL = 1e-4  # distance clamp relative to the largest sender-receiver distance on screen
 
@@ -70,12 +78,6 @@ def screen_sender_bounce(gbuffer: dict, direct: np.ndarray, camera) -> np.ndarra
 
 
 def _ratio_table(run_dirs) -> list[str]:
-    from pathlib import Path
-
-    from bench.model.corpus import load_scene
-    from bench.gl import render_gbuffer
-    from bench.gl.context import create_context
-    from bench.model.imageio import read_exr
     ctx = create_context()
     lines = ["| run | scene | view | WxH | SSDO / ref | screen bound / ref |", "|---|---|---|---|---|---|"]
     for run in run_dirs:
@@ -97,7 +99,6 @@ def _ratio_table(run_dirs) -> list[str]:
 
 
 if __name__ == "__main__":
-    import sys
     if len(sys.argv) < 2:
         raise SystemExit("usage: python -m studies.ssdo_screen_bound RUN_DIR [RUN_DIR ...]")
     print("\n".join(_ratio_table(sys.argv[1:])))

@@ -5,7 +5,8 @@ import shutil
 import numpy as np
 import pytest
 
-from bench.gate.compare import adjust_p_values, compare_runs, error_check, timing_check
+from bench.gate import compare_runs
+from bench.gate.statistics import adjust_p_values, error_check, timing_check
 from bench.protocol.results import load_results, params_json, save_results, summarize_samples
 
 MACHINE = {"gl_renderer": "llvmpipe (LLVM 19.1.7, 256 bits)", "cpu": "test cpu"}

@@ -15,7 +15,8 @@ import pytest
 from bench.protocol import results as store
 from bench.model.imageio import read_exr, write_exr
 from reports import build_report
-from reports.build import error_scales, fmt
+from reports.render import fmt
+from reports.viewdata import error_scales
 
 CHROMIUM = Path("/usr/bin/chromium")
 SCREENSHOT = Path(__file__).resolve().parents[1] / "test-output" / "report.png"
@@ -256,3 +257,10 @@ def test_scaling_fit_recovers_the_slope(tmp_path):
     counts, times, slope = fits["m"]
     assert slope == pytest.approx(0.5) and list(counts) == [1e4, 1e6, 1e7]
     assert plots.scaling_plot(fits, tmp_path / "s.svg").is_file()
+
+
+def test_fmt_keeps_the_report_number_format():
+    assert fmt(28800.4) == "28,800" and fmt(12345678.9) == "12,345,679" and fmt(1e9) == "1e+09"
+    assert fmt(0.000123456) == "0.000123" and fmt(999.5) == "1e+03" and fmt(1.5, 2) == "1.5"
+    assert fmt(1234) == "1,234" and fmt(np.int64(7)) == "7" and fmt(True) == "yes" and fmt(np.bool_(False)) == "no"
+    assert fmt(float("inf")) == "\u2014" and fmt("n/a") == "n/a"

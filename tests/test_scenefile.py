@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from bench.model.scene import SceneError, compute_facts
-from bench.model.scenefile import (MeshData, clean_mesh, load_scene_file, read_mesh, read_mesh_npz, transform_matrix,
-                             write_mesh_npz)
+from bench.model.meshfile import MeshData, clean_mesh, read_mesh, read_mesh_npz, transform_matrix, write_mesh_npz
+from bench.model.scenefile import load_scene_file
 
 REPO = Path(__file__).resolve().parents[1]
 EXAMPLE = REPO / "scenes" / "examples" / "two_quads.toml"

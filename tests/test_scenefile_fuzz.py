@@ -101,7 +101,7 @@ def test_non_finite_obj_vertex_is_rejected_without_warnings(tmp_path):
 
 def test_tiny_mirroring_scale_flips_the_winding(tmp_path):
     # det(diag(-1e-110, 1e-110, 1e-110)) underflows to -0.0, which is not < 0: the winding was kept
-    from bench.model.scenefile import read_mesh, transform_matrix, transformed
+    from bench.model.meshfile import read_mesh, transform_matrix, transformed
     (tmp_path / "m.obj").write_text(MESH_FILES["quad"])
     mesh = read_mesh(tmp_path / "m.obj")
     out = transformed(mesh, transform_matrix(scale=[-1e-110, 1e-110, 1e-110]))

@@ -1,4 +1,5 @@
-"""`gibench stress` (bench.stress.suite, bench.stress.perturb): perturbations, figures, verdicts, the quick suite."""
+"""`gibench stress` (bench.stress: suite, perturb, variants, figures, limits, case, isolate): perturbations,
+figures, verdicts, the quick suite."""
 from __future__ import annotations
 
 import json
@@ -10,8 +11,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from bench.stress import suite as stress
 from bench.stress import perturb
+from bench.stress import suite as stress
+from bench.stress.case import run_case
+from bench.stress.figures import mean_change, pixel_counts, relative_change
+from bench.stress.isolate import run_case_isolated
+from bench.stress.limits import documented_limits, match_limit
+from bench.stress.variants import param_variants
+from bench.protocol.vocabulary import REFERENCE_COMPONENTS
+from reports.stress import build_stress_report
 from bench.protocol.method import FrameOutput, MethodBase, Param
 from bench.model.scene import DirectionalLight, PointLight, SpotLight, triangle_normals
 from tests.conftest import make_grid_box, make_open_box
@@ -124,12 +132,12 @@ def test_grazing_camera_and_light():
 def test_param_variants_cover_the_declared_ends():
     from bench.protocol.registry import load_method
     cls = load_method("ir_unshadowed")
-    full = dict(stress.param_variants(cls, quick=False))
+    full = dict(param_variants(cls, quick=False))
     assert full["params:vpl_count=1"] == {"vpl_count": 1} and full["params:vpl_count=65536"] == {"vpl_count": 65536}
     assert full["params:clamp_distance_rel=1e-07"] == {"clamp_distance_rel": 1e-07}
-    quick = dict(stress.param_variants(cls, quick=True))
+    quick = dict(param_variants(cls, quick=True))
     assert quick == {"params:vpl_count=1": {"vpl_count": 1}}
-    flc = dict(stress.param_variants(load_method("flc"), quick=False))
+    flc = dict(param_variants(load_method("flc"), quick=False))
     assert flc["params:reach=eq18_printed"] == {"reach": "eq18_printed"}
     assert flc["params:jitter=False"] == {"jitter": False}
 
@@ -140,12 +148,12 @@ def test_figures():
     b[0, 0] = [np.nan, 1, 1]
     b[0, 1] = [np.inf, 1, 1]
     b[1, 1] = [-0.5, 1, 1]
-    counts = stress.pixel_counts(b, a)
+    counts = pixel_counts(b, a)
     assert (counts["nan_pixels"], counts["inf_pixels"], counts["negative_pixels"]) == (1, 1, 1)
     assert counts["min_value"] == -0.5
-    assert stress.relative_change(a * 1.1, a) == pytest.approx(0.1, rel=1e-6)
-    assert stress.mean_change(a * 0.9, a) == pytest.approx(-0.1, rel=1e-6)
-    assert stress.relative_change(a, a) == 0.0
+    assert relative_change(a * 1.1, a) == pytest.approx(0.1, rel=1e-6)
+    assert mean_change(a * 0.9, a) == pytest.approx(-0.1, rel=1e-6)
+    assert relative_change(a, a) == 0.0
 
 
 def test_documented_limits_from_the_manual():
@@ -156,10 +164,10 @@ def test_documented_limits_from_the_manual():
         """
         name = "documented"
         stress_limits: ClassVar[dict] = {"translate=*": "float32 positions"}
-    limits = stress.documented_limits(Documented)
-    assert stress.match_limit(limits, "scale=1e-04").startswith("an absolute epsilon")
-    assert stress.match_limit(limits, "translate=1e+05R") == "float32 positions"
-    assert stress.match_limit(limits, "scale=1e+04") is None
+    limits = documented_limits(Documented)
+    assert match_limit(limits, "scale=1e-04").startswith("an absolute epsilon")
+    assert match_limit(limits, "translate=1e+05R") == "float32 positions"
+    assert match_limit(limits, "scale=1e+04") is None
 
 
 def test_documented_limits_of_the_shipped_manuals():
@@ -170,14 +178,14 @@ def test_documented_limits_of_the_shipped_manuals():
         cls = load_method(name)
         manual = sys.modules[cls.__module__].__doc__ or ""
         lines = [ln.strip() for ln in manual.splitlines() if ln.strip().startswith("Stress limit")]
-        limits = stress.documented_limits(cls)
+        limits = documented_limits(cls)
         for line in lines:
             pattern = line[len("Stress limit"):].strip().split(": ")[0].rstrip(":")
             assert pattern in limits, (name, line, sorted(limits))
-            assert stress.match_limit(limits, pattern) is not None
-    flc = stress.documented_limits(load_method("flc"))
-    assert stress.match_limit(flc, "params:progressive_frames=4096")
-    assert stress.match_limit(flc, "params:progressive_frames=1") is None
+            assert match_limit(limits, pattern) is not None
+    flc = documented_limits(load_method("flc"))
+    assert match_limit(flc, "params:progressive_frames=4096")
+    assert match_limit(flc, "params:progressive_frames=1") is None
 
 
 # ---------------------------------------------------------------------------- the suite on fake methods (GL)
@@ -210,9 +218,9 @@ class DocumentedTinyScaleNaN(TinyScaleNaN):
 
 def test_probe_counts_non_finite_pixels_instead_of_aborting(gl_ctx):
     scene = perturb.scale(make_open_box(), 1e-4)
-    res = stress.run_case(gl_ctx, TinyScaleNaN, scene, "main", 32, 24, {}, 0)
+    res = run_case(gl_ctx, TinyScaleNaN, scene, "main", 32, 24, {}, 0)
     assert res.status == "ok"
-    counts = stress.pixel_counts(res.images["direct"], res.images["indirect"])
+    counts = pixel_counts(res.images["direct"], res.images["indirect"])
     assert (counts["nan_pixels"], counts["inf_pixels"], counts["negative_pixels"]) == (1, 1, 1)
     # the harness alone refuses the frame: the probe is what lets the suite count
     from bench.run.harness import run_method
@@ -224,6 +232,7 @@ def test_suite_flags_and_documents_failures(gl_ctx, tmp_path):
     cfg = stress.StressConfig(scenes=[make_open_box()], methods=[TinyScaleNaN, DocumentedTinyScaleNaN, "direct"],
                               quick=True, out=tmp_path / "s", references=False, fuzz_examples=5)
     df, suite = stress.run_stress(cfg, log=lambda m: None)
+    build_stress_report(suite.run_dir)  # the page is built from the folder after the suite, as `gibench stress` does
     assert list(df.columns) == list(stress.COLUMNS)
     row = lambda p, n: df[(df["perturbation"] == p) & (df["name"] == n)].iloc[0]
     bad = row("scale=1e-04", "tiny_scale_nan")
@@ -251,8 +260,8 @@ def test_isolated_case_matches_in_process(gl_ctx):
     from bench.model.corpus import load_scene
     from bench.protocol.registry import load_method
     scene = load_scene("cornell_spot")
-    here = stress.run_case(gl_ctx, load_method("direct"), scene, "main", 32, 24, {}, 0)
-    there = stress.run_case_isolated({"scene": "cornell_spot", "variant": None, "method": "direct", "params": {},
+    here = run_case(gl_ctx, load_method("direct"), scene, "main", 32, 24, {}, 0)
+    there = run_case_isolated({"scene": "cornell_spot", "variant": None, "method": "direct", "params": {},
                                       "view": "main", "width": 32, "height": 24, "seed": 0}, timeout=120)
     assert there.status == "ok"
     assert np.array_equal(here.images["direct"], there.images["direct"])
@@ -271,7 +280,7 @@ def test_quick_suite_cli(tmp_path, capsys):
     assert printed.splitlines()[0].startswith(f"{int((df['verdict'] == 'pass').sum())} pass")
     assert set(df["family"]) >= {"determinism", "scale", "translate", "degenerate", "grazing", "params", "invalid", "fuzz"}
     refs = df[df["target"] == "reference"]
-    assert set(refs["name"]) == set(stress.REFERENCE_COMPONENTS)
+    assert set(refs["name"]) == set(REFERENCE_COMPONENTS)
     assert refs["nan_pixels"].eq(0).all() and refs["inf_pixels"].eq(0).all()
     # invariance rows carry a tolerance and the criterion that used it
     inv = df[(df["kind"] == "invariance") & df["target"].isin(["method", "reference"])]

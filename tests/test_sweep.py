@@ -10,8 +10,9 @@ import pandas as pd
 import pytest
 
 from bench.protocol.method import MethodBase, Param, ParamError
-from bench.analysis.curves import (combined_curve, mitsuba_seconds_for_error, pareto_front, pareto_table,
-                         sweep_param_sets, sweep_table, variant_labels)
+from bench.analysis.curves import (combined_curve, declared_defaults, mitsuba_seconds_for_error, pareto_front,
+                                   pareto_table, sweep_table, variant_labels)
+from bench.run.sweep import sweep_param_sets
 
 
 class OneKnob(MethodBase):
@@ -115,7 +116,7 @@ def _rows():
 
 def test_sweep_table_speedups_and_pareto():
     curves = {"s/v/indirect_unshadowed": CURVE}
-    table = sweep_table(_rows(), curves)
+    table = sweep_table(_rows(), curves, {})
     assert list(table["label"]) == ["a n=1", "a n=4", "b"]  # the failed row is dropped
     # a n=1: MSE 0.08 -> Mitsuba t = 0.08/0.08 = 1 s (first curve point is 0.8 at 0.1 s: inside)
     assert table["mitsuba_ms.indirect"].tolist() == pytest.approx([1000.0, 4000.0, 800.0])
@@ -124,7 +125,7 @@ def test_sweep_table_speedups_and_pareto():
     assert table["speedup.combined"].isna().all()  # no direct / indirect_visible curve: no claim
     assert not table["speedup_lower_bound.indirect"].any()  # noise floor unknown
     rows = _rows().assign(**{"reference_noise_floor.indirect_unshadowed": 0.045})
-    bound = sweep_table(rows, curves)["speedup_lower_bound.indirect"]
+    bound = sweep_table(rows, curves, {})["speedup_lower_bound.indirect"]
     assert bound.tolist() == [True, True, False]  # MSE <= 2 x floor: mostly reference noise
     front = pareto_table(table)
     assert list(front["label"]) == ["a n=1", "a n=4"]  # b (4 ms, 0.1) is dominated by a n=1 (2 ms, 0.08)
@@ -133,11 +134,11 @@ def test_sweep_table_speedups_and_pareto():
 
 def test_variant_labels_only_name_varying_params():
     df = pd.DataFrame({"method": ["a", "a", "b"], "params": ['{"n":1,"e":0.1}', '{"n":2,"e":0.1}', '{"n":1}']})
-    assert variant_labels(df).tolist() == ["a n=1", "a n=2", "b"]
+    assert variant_labels(df, {}).tolist() == ["a n=1", "a n=2", "b"]
     # one knob at a time around defaults n=4, k=2: the default row is the bare method name
     sets = [{"n": 4, "k": 2}, {"n": 1, "k": 2}, {"n": 16, "k": 2}, {"n": 4, "k": 0}]
     df = pd.DataFrame({"method": ["a"] * 4, "params": [json.dumps(p) for p in sets]})
-    assert variant_labels(df).tolist() == ["a", "a n=1", "a n=16", "a k=0"]
+    assert variant_labels(df, {}).tolist() == ["a", "a n=1", "a n=16", "a k=0"]
 
 
 def test_cli_sweep_end_to_end(tmp_path, capsys):
@@ -179,9 +180,41 @@ def test_bad_curves_file_names_itself(tmp_path):
 
 
 def test_ladder_labels_name_the_default_rung_by_the_method():
-    # a ladder's rungs all differ: the registered defaults pick the bare label
+    # a ladder's rungs all differ: the registered defaults, as the run's manifest records them, pick the bare label
+    from bench.protocol.registry import load_method
+    from bench.run.manifest import method_declaration
     rungs = [{"vpl_count": 16}, {"vpl_count": 64}, {"vpl_count": 256}, {"vpl_count": 1024}]
     df = pd.DataFrame({"method": ["ir_unshadowed"] * 4,
                        "params": [json.dumps(dict(p, clamp_distance_rel=1e-4)) for p in rungs]})
-    assert variant_labels(df).tolist() == ["ir_unshadowed vpl_count=16", "ir_unshadowed vpl_count=64",
+    manifest = json.loads(json.dumps({"methods": {"ir_unshadowed": method_declaration(load_method("ir_unshadowed"))}}))
+    assert variant_labels(df, declared_defaults(manifest)).tolist() == ["ir_unshadowed vpl_count=16", "ir_unshadowed vpl_count=64",
                                            "ir_unshadowed", "ir_unshadowed vpl_count=1024"]
+
+
+def _ladder_run(folder, manifest: dict):
+    """A run folder of ir_unshadowed's four ladder rungs (no images) with the given manifest."""
+    from bench.protocol import results as store
+    rows = [{"scene": "cornell_spot", "view": "main", "method": "ir_unshadowed", "params": json.dumps({"vpl_count": n}),
+             "seed": 0, "width": 8, "height": 6, "status": "ok", "frame_ms": 1.0 + i, "frame_ms_iqr": 0.1,
+             "image_dir": f"images/cornell_spot/main/ir_unshadowed@{n}"} for i, n in enumerate((16, 64, 256, 1024))]
+    folder.mkdir()
+    store.save_results(folder, rows)
+    (folder / "manifest.json").write_text(json.dumps(manifest))
+    return folder
+
+
+def test_labels_come_from_the_run_manifest_not_todays_code(tmp_path):
+    from bench.analysis.curves import write_sweep
+    from reports import build_report
+    # the run declared vpl_count=64 its default (today's class says 256): the 64 rung is the bare method
+    run = _ladder_run(tmp_path / "run", {"methods": {"ir_unshadowed": {"version": "old", "defaults": {"vpl_count": 64}}}})
+    sweep_path, _ = write_sweep(run)
+    assert pd.read_csv(sweep_path)["label"].tolist() == ["ir_unshadowed vpl_count=16", "ir_unshadowed",
+                                                         "ir_unshadowed vpl_count=256", "ir_unshadowed vpl_count=1024"]
+    page = build_report(run).read_text()
+    assert "<td class='l'>ir_unshadowed vpl_count=256</td>" in page and "<td class='l'>ir_unshadowed</td>" in page
+    # a run older than the manifest's `methods`: no declared default, every rung is named by its value
+    old = _ladder_run(tmp_path / "old", {"git_commit": "abc"})
+    sweep_path, _ = write_sweep(old)
+    assert pd.read_csv(sweep_path)["label"].tolist() == [f"ir_unshadowed vpl_count={n}" for n in (16, 64, 256, 1024)]
+    assert "<td class='l'>ir_unshadowed</td>" not in build_report(old).read_text()

@@ -31,9 +31,9 @@ import math
 import numpy as np
 import pandas as pd
 
+from bench.protocol.vocabulary import REFERENCE_PARTS
+
 ERROR_COLUMNS = ("mse.combined", "mse.indirect")
-NOISE_FLOOR = {"mse.combined": ("direct", "indirect_visible"), "mse.indirect": ("indirect_unshadowed",),
-               "mse.indirect_visible": ("indirect_visible",), "mse.direct": ("direct",)}
 
 
 def envelope(times, errors) -> tuple[np.ndarray, np.ndarray]:
@@ -72,8 +72,10 @@ def time_at_error(times, errors, e: float) -> tuple[float, bool]:
 
 
 def _floor(rows: pd.DataFrame, error: str) -> np.ndarray:
+    """The noise floor of an MSE column: the sum of its reference parts' floors (an MSE each); 0 for other errors."""
+    metric, _, component = error.partition(".")
     total = np.zeros(len(rows))
-    for part in NOISE_FLOOR.get(error, ()):
+    for part in REFERENCE_PARTS.get(component, ()) if metric == "mse" else ():
         col = f"reference_noise_floor.{part}"
         if col not in rows.columns:
             return np.zeros(len(rows))

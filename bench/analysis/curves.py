@@ -26,14 +26,9 @@ import numpy as np
 import pandas as pd
 
 from bench.protocol import results as store
+from bench.protocol.results import load_json_object, load_manifest
+from bench.protocol.vocabulary import CURVE_COMPONENTS, ERROR_METRICS, REFERENCE_PARTS, Status
 
-# Error column component -> reference curve component it is measured against.
-CURVE_COMPONENTS = {
-    "direct": "direct",
-    "indirect": "indirect_unshadowed",
-    "indirect_visible": "indirect_visible",
-    "combined": "combined",
-}
 SPEEDUP_COMPONENTS = ("indirect", "indirect_visible", "combined")
 PARETO_ERROR = "mse.indirect"
 
@@ -143,38 +138,38 @@ def curve_for(curves: dict, scene: str, view: str, component: str):
 
 
 def load_curves(run_dir: Path) -> dict:
-    path = Path(run_dir) / "reference_curves.json"
-    if not path.is_file():
-        return {}
-    try:
-        data = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{path}: not valid JSON ({exc})") from None
-    if not isinstance(data, dict):
-        raise ValueError(f"{path}: expected an object of 'scene/view/component' -> curve points")
-    return data
+    return load_json_object(Path(run_dir) / "reference_curves.json",
+                            "an object of 'scene/view/component' -> curve points")
 
 
 # ---------------------------------------------------------------------------- tables
-def variant_labels(df: pd.DataFrame) -> pd.Series:
+def declared_defaults(manifest: dict) -> dict[str, dict]:
+    """{method: {parameter: default}} as each method declared it when the run ran (the manifest's
+    `methods`); {} for a run that predates that record."""
+    methods = manifest.get("methods") or {}
+    return {name: dict(decl.get("defaults") or {}) for name, decl in methods.items() if isinstance(decl, dict)}
+
+
+def variant_labels(df: pd.DataFrame, declared: dict[str, dict]) -> pd.Series:
     """A short label per row: the method name, plus the parameters that set the row apart.
 
-    Among a method's rows, a parameter's base value is its most frequent one when it repeats
-    (the default, in a one-knob-at-a-time sweep); a label names the parameters that vary and
-    differ from their base value. A single-knob grid names the knob on every row.
+    Among a method's rows, a parameter that varies has a base value: its default in `declared`
+    ({method: {parameter: default}}, see declared_defaults: a quality ladder's rungs all differ,
+    and the default names the default rung), else its most frequent value when it repeats (the
+    default, in a one-knob-at-a-time sweep). A label names the parameters that differ from their
+    base value; a single-knob grid without a declared default names the knob on every row.
     """
     labels = pd.Series(df["method"].astype(str).values, index=df.index)
     for method, group in df.groupby("method", sort=False):
         parsed = {i: json.loads(p) if isinstance(p, str) and p else {} for i, p in group["params"].items()}
         keys = sorted({k for d in parsed.values() for k in d})
         base = {}
-        declared = _declared_defaults(str(method))
+        defaults = declared.get(str(method), {})
         for k in keys:
             counts = pd.Series([json.dumps(d.get(k), sort_keys=True) for d in parsed.values()]).value_counts()
             if len(counts) > 1:
-                # a registered method's default names its default rung: a ladder's rungs all differ
-                if k in declared:
-                    base[k] = json.dumps(declared[k], sort_keys=True)
+                if k in defaults:
+                    base[k] = json.dumps(defaults[k], sort_keys=True)
                 else:
                     base[k] = counts.index[0] if counts.iloc[0] > 1 else None
         for i, d in parsed.items():
@@ -184,27 +179,20 @@ def variant_labels(df: pd.DataFrame) -> pd.Series:
     return labels
 
 
-def _declared_defaults(method: str) -> dict:
-    """The method's declared parameter defaults, or {} when it is not registered (or fails to load)."""
-    from bench.protocol.registry import load_method
-    try:
-        return {k: p.default for k, p in load_method(method).params.items()}
-    except Exception:
-        return {}
-
-
 def ok_rows(df: pd.DataFrame) -> pd.DataFrame:
-    status = df["status"].astype(str) if "status" in df.columns else pd.Series("ok", index=df.index)
-    return df[status.str.startswith(("ok", "cached"))].copy()
+    """The rows that have images and measurements (rendered in the run or taken from the row cache)."""
+    if "status" not in df.columns:
+        return df.copy()
+    return df[df["status"].map(Status.has_images)].copy()
 
 
-def sweep_table(df: pd.DataFrame, curves: dict, keep: tuple = ()) -> pd.DataFrame:
-    """Rows that rendered, with their error columns, Mitsuba's equal-error time and the speed-up
-    (plus the columns whose names start with one of `keep`)."""
+def sweep_table(df: pd.DataFrame, curves: dict, declared: dict[str, dict], keep: tuple = ()) -> pd.DataFrame:
+    """Rows that rendered, labelled (see variant_labels: `declared` are the run's declared defaults),
+    with their error columns, Mitsuba's equal-error time and the speed-up (plus the columns whose
+    names start with one of `keep`)."""
     rows = ok_rows(df)
-    rows["label"] = variant_labels(rows) if len(rows) else pd.Series(dtype=str)
-    error_cols = sorted(c for c in rows.columns if c.split(".", 1)[0] in
-                        ("mse", "relmse", "smape", "dssim", "flip_mean", "flip_median", "ciede2000"))
+    rows["label"] = variant_labels(rows, declared) if len(rows) else pd.Series(dtype=str)
+    error_cols = sorted(c for c in rows.columns if c.split(".", 1)[0] in ERROR_METRICS)
     base = [c for c in ("scene", "view", "method", "label", "params", "frame_ms", "frame_ms_iqr", "gpu_ms")
             if c in rows.columns]
     kept = [c for c in rows.columns if c.startswith(tuple(keep)) and c not in base and c not in error_cols]
@@ -229,9 +217,8 @@ def sweep_table(df: pd.DataFrame, curves: dict, keep: tuple = ()) -> pd.DataFram
 
 def _noise_floor(rows: pd.DataFrame, comp: str) -> np.ndarray:
     """Noise floor MSE of the reference(s) an error column is measured against (NaN when unknown)."""
-    parts = ("direct", "indirect_visible") if comp == "combined" else (CURVE_COMPONENTS[comp],)
     total = np.zeros(len(rows))
-    for part in parts:
+    for part in REFERENCE_PARTS[comp]:
         col = f"reference_noise_floor.{part}"
         if col not in rows.columns:
             return np.full(len(rows), np.nan)
@@ -252,9 +239,9 @@ def pareto_table(table: pd.DataFrame, error: str = PARETO_ERROR) -> pd.DataFrame
 
 
 def write_sweep(run_dir: Path) -> tuple[Path, Path]:
-    """Write `sweep.csv` and `pareto.csv` of a run folder; returns their paths."""
+    """Write `sweep.csv` and `pareto.csv` of a run folder (labels from its manifest); returns their paths."""
     run_dir = Path(run_dir)
-    table = sweep_table(store.load_results(run_dir), load_curves(run_dir))
+    table = sweep_table(store.load_results(run_dir), load_curves(run_dir), declared_defaults(load_manifest(run_dir)))
     sweep_path, pareto_path = run_dir / "sweep.csv", run_dir / "pareto.csv"
     store.atomic_write_text(sweep_path, table.to_csv(index=False))
     store.atomic_write_text(pareto_path, pareto_table(table).to_csv(index=False))

@@ -8,6 +8,7 @@ Components compared (column suffix -> method image vs reference):
 The covered-pixel mask is where the reference's direct + indirect is non-zero or the method's
 image is (background pixels are black in both).
 
+Components and which reference judges which image: bench.protocol.vocabulary.COMPARISONS.
 Columns: `<metric>.<component>` for every metric of `bench.analysis.metrics.METRICS` (mse, relmse, smape,
 dssim, flip_mean, flip_median, ciede2000; all lower is better). The display transforms of FLIP
 and of dssim/ciede2000 depend on the reference alone (its covered pixels of positive value are
@@ -34,12 +35,10 @@ from pathlib import Path
 
 import numpy as np
 
-COMPARISONS = {
-    "direct": ("direct", ("direct",)),
-    "indirect": ("indirect", ("indirect_unshadowed",)),
-    "indirect_visible": ("indirect", ("indirect_visible",)),
-    "combined": ("combined", ("direct", "indirect_visible")),
-}
+from bench.analysis import metrics
+from bench.protocol.versioning import hash_files
+from bench.protocol.vocabulary import COMPARISONS, IMAGE_COMPONENTS
+
 
 
 def coverage_mask(images: dict, refs: dict) -> np.ndarray:
@@ -52,13 +51,9 @@ _CODE_HASH: list = []
 
 
 def _code_hash() -> str:
-    """Hash of the metric code: a change to it invalidates every memo entry."""
+    """Hash of the metric code (prose excluded): a change to it invalidates every memo entry."""
     if not _CODE_HASH:
-        from bench.analysis import metrics
-        h = hashlib.sha256()
-        for path in (Path(__file__), Path(metrics.__file__)):
-            h.update(path.read_bytes())
-        _CODE_HASH.append(h.hexdigest()[:16])
+        _CODE_HASH.append(hash_files([Path(__file__), Path(metrics.__file__)]))
     return _CODE_HASH[0]
 
 
@@ -93,8 +88,7 @@ def _memo_write(memo_dir, key: str, values: dict) -> None:
 
 
 def evaluate_row(images: dict, refs: dict, memo_dir=None) -> dict:
-    from bench.analysis.metrics import compute_all, flip_exposure_range, tonemap_scale
-    missing = [name for name in ("direct", "indirect", "combined") if images.get(name) is None]
+    missing = [name for name in IMAGE_COMPONENTS if images.get(name) is None]
     if missing:
         raise ValueError(f"evaluate_row: method image(s) {', '.join(missing)} missing")
     mask = coverage_mask(images, refs)
@@ -108,10 +102,10 @@ def evaluate_row(images: dict, refs: dict, memo_dir=None) -> dict:
             if memo_dir is not None else ""
         values = _memo_read(memo_dir, key)
         if values is None:
-            metrics = compute_all(images[image_name], reference, mask,
-                                  flip_exposure=flip_exposure_range(reference, mask),
-                                  tonemap_scale_value=tonemap_scale(reference, mask))
-            values = {f"{name}.{column}": float(value) for name, value in metrics.items()}
+            scores = metrics.compute_all(images[image_name], reference, mask,
+                                         flip_exposure=metrics.flip_exposure_range(reference, mask),
+                                         tonemap_scale_value=metrics.tonemap_scale(reference, mask))
+            values = {f"{name}.{column}": float(value) for name, value in scores.items()}
             ratio = mean_ratio(images[image_name], reference, mask)
             if np.isfinite(ratio):  # a black reference has no ratio: the column is left out
                 values[f"mean_ratio.{column}"] = ratio

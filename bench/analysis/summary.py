@@ -4,12 +4,12 @@ report with images and plots is `gibench report` (reports/)."""
 from __future__ import annotations
 
 import html
-import json
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from bench.protocol.results import load_manifest
 from bench.protocol.results import atomic_write_text, load_results
 
 
@@ -40,7 +40,7 @@ def to_markdown(table: pd.DataFrame) -> str:
 def write_summary(run_dir: Path) -> tuple[Path, Path]:
     run_dir = Path(run_dir)
     df = load_results(run_dir)
-    manifest = json.loads((run_dir / "manifest.json").read_text()) if (run_dir / "manifest.json").is_file() else {}
+    manifest = load_manifest(run_dir)
     machine = manifest.get("machine", {})
     table = summary_table(df)
     md = (f"# gibench run {run_dir.name}\n\n"

@@ -2,7 +2,7 @@
 from __future__ import annotations
 
 from bench.cli import options
-from bench.gate.compare import compare_runs
+from bench.gate import compare_runs
 
 
 def add_parser(sub) -> None:

@@ -5,6 +5,7 @@ import sys
 from pathlib import Path
 
 from bench.cli import options
+from bench.stress.isolate import CASE_TIMEOUT_S
 from bench.stress.suite import STRESS_SCENES, StressConfig, run_stress, summary_text
 
 
@@ -22,7 +23,7 @@ def add_parser(sub) -> None:
     p.add_argument("--reference-spp", type=int, default=None, help="reference samples per pixel (default 64; 16 with --quick)")
     p.add_argument("--isolate", choices=("none", "params", "all"), default=None,
                    help="cases run in a child process with a timeout (default: params; none with --quick)")
-    p.add_argument("--timeout", type=float, default=300.0, help="seconds per isolated case")
+    p.add_argument("--timeout", type=float, default=CASE_TIMEOUT_S, help="seconds per isolated case")
     p.add_argument("--fuzz-examples", type=int, default=None, help="hypothesis examples (default 500; 50 with --quick)")
     p.add_argument("--only", default=None, help="perturbation families, comma-separated (default: all of "
                                                 "determinism,scale,translate,degenerate,grazing,params,invalid,fuzz)")
@@ -44,7 +45,7 @@ def main(args) -> int:
     print(summary_text(df))
     print(f"stress table: {suite.run_dir / 'stress.csv'}")
     try:
-        from reports.build import build_stress_report   # optional: the table stands without the page
+        from reports.stress import build_stress_report   # optional: the table stands without the page
     except ImportError:
         return 1 if (df["verdict"] == "fail").any() else 0
     print(f"stress report: {build_stress_report(suite.run_dir)}")

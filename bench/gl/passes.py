@@ -36,6 +36,7 @@ import moderngl
 import numpy as np
 
 from bench.model.scene import DirectionalLight, PointLight, Scene, SpotLight
+from bench.protocol.vocabulary import SHARED_STAGES
 from .camera import View, look_at, orthographic, perspective
 from .context import check_gl, create_context, park
 from .gpu_scene import GpuScene
@@ -43,7 +44,6 @@ from .profiler import StageProfiler
 from .shaders import GLOBAL_DEFINES, has_member, load_program, set_uniforms
 
 SHADER_DIR = Path(__file__).parent / "shaders"
-SHARED_STAGES = ("gbuffer_shadow", "direct_light", "rsm")
 KNOWN_NEEDS = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
 RSM_RESOLUTION = 128   # the shared RSM's tile side
 

@@ -18,7 +18,7 @@ from .shaders import load_compute, load_program, set_uniforms
 SHADERS = Path(__file__).parent / "shaders"
 # Param docs shared by the VPL methods (ir_unshadowed, ir_shadowed, val_clustered, visibility_gates)
 VPL_COUNT_DOC = "VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified)"
-CLAMP_DOC = "distance clamp eps of max(eps, |x - y|) relative to the scene radius (tames the 1/d^2 singularity)"
+CLAMP_DOC = "distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity)"
 
 # SSBO binding points (>= 3: 0..2 belong to the GL core) and the scan block size.
 VPL_DEFINES = {"BINDING_RSM_MAX": 3, "BINDING_RSM_CDF": 4, "BINDING_RSM_BLOCK_CDF": 5, "BINDING_VPLS": 6,

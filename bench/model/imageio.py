@@ -20,6 +20,7 @@ def write_exr(path, image: np.ndarray) -> None:
     h, w, c = img.shape
     spec = oiio.ImageSpec(w, h, c, oiio.FLOAT)
     spec.attribute("compression", "zip")
+    spec.attribute("DateTime", "")   # no timestamp: the same image always writes the same bytes
     if c == 3:
         spec.channelnames = ("R", "G", "B")
     tmp = path.with_name(path.stem + ".tmp" + path.suffix)

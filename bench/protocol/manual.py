@@ -9,6 +9,7 @@ against them (`gibench manuals`, and the test suite), so a table never disagrees
 """
 from __future__ import annotations
 
+import ast
 import importlib
 import re
 from pathlib import Path
@@ -16,13 +17,24 @@ from pathlib import Path
 BEGIN = "<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->"
 END = "<!-- end of parameters -->"
 _BLOCK = re.compile(re.escape(BEGIN) + r"\n.*?" + re.escape(END), re.S)
+# "Stress limit <pattern>: <reason>" documents a stress failure the method's design implies (one
+# line; the pattern may itself hold colons, params:NAME=VALUE, so it ends at a colon followed by
+# white space)
+_STRESS_LIMIT = re.compile(r"^\s*[-*]?\s*Stress limit\s+(\S+)\s*:\s+(.+?)\s*$", re.MULTILINE)
+
+
+def stress_limits(text: str) -> dict:
+    """{fnmatch pattern: reason} of the "Stress limit PATTERN: reason" lines of a manual."""
+    limits: dict = {}
+    for pattern, reason in _STRESS_LIMIT.findall(text or ""):
+        limits.setdefault(pattern, reason)
+    return limits
 
 
 def format_value(value) -> str:
+    """A declared value as Python writes it (2.0, 0.0001, 1e-05), booleans lower-case."""
     if isinstance(value, bool):
         return "true" if value else "false"
-    if isinstance(value, float):
-        return f"{value:g}"
     return str(value)
 
 
@@ -30,7 +42,7 @@ def param_range(p) -> str:
     if p.choices is not None:
         return ", ".join(format_value(c) for c in p.choices)
     if isinstance(p.default, bool):
-        return "true, false"
+        return "bool"
     if p.low is None and p.high is None:
         return "any"
     low = format_value(p.low) if p.low is not None else "-inf"
@@ -38,11 +50,20 @@ def param_range(p) -> str:
     return f"{low} .. {high}"
 
 
+def param_meaning(p) -> str:
+    """The declared doc on one line ("|" would end the cell: it becomes "/"), and for a quality
+    knob the values a sweep turns it to."""
+    text = " ".join(str(p.doc).replace("|", "/").split())
+    if p.quality:
+        text += " (quality knob" + (f"; sweep {', '.join(format_value(v) for v in p.sweep)})" if p.sweep else ")")
+    return text
+
+
 def param_table(cls) -> str:
     """The Markdown table of `cls.params` (name, default, range, meaning), between the markers."""
     rows = [("parameter", "default", "range", "meaning")]
     for name, p in cls.params.items():
-        rows.append((f"`{name}`", format_value(p.default), param_range(p), " ".join(str(p.doc).split())))
+        rows.append((name, format_value(p.default), param_range(p), param_meaning(p)))
     widths = [max(len(r[i]) for r in rows) for i in range(3)]
     lines = []
     for i, r in enumerate(rows):
@@ -65,8 +86,7 @@ def check(cls) -> list[str]:
     """One line per file whose table is missing or differs from the declarations."""
     table = param_table(cls)
     problems = []
-    module = importlib.import_module(cls.__module__)
-    doc = module.__doc__ or ""
+    doc = ast.get_docstring(ast.parse(manual_files(cls)[0].read_text()), clean=False) or ""
     if table not in doc:
         found = _BLOCK.search(doc)
         problems.append(f"method '{cls.name}': the manual's parameter table "

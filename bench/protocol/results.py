@@ -23,6 +23,7 @@ import pandas as pd
 SCHEMA_VERSION = 1
 KEY_COLUMNS = ("scene", "view", "method", "params", "seed")
 CHECKSUMS = "results.checksums.json"
+MANIFEST = "manifest.json"
 BASE_COLUMNS = ("scene", "scene_hash", "view", "method", "params", "seed", "width", "height", "frames", "warmup",
                 "frame_ms", "frame_ms_iqr", "gpu_ms", "status", "method_version", "row_key",
                 "skipped_stages", "samples.frame_ms", "samples.stage_ms")
@@ -172,3 +173,21 @@ def timing_settled(samples, min_frames: int, elapsed_s: float, budget_s: float, 
     lo, hi = median_ci(samples)
     med = float(np.median(samples))
     return bool(np.isfinite(lo) and med > 0 and (hi - lo) / (2 * med) <= rel_halfwidth)
+
+
+def load_json_object(path: Path, expected: str) -> dict:
+    """A run folder's JSON object file ({} when absent); a one-line error names a bad file."""
+    if not path.is_file():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict):
+        raise ValueError(f"{path}: expected {expected}")
+    return data
+
+
+def load_manifest(run_dir: Path) -> dict:
+    """The run folder's manifest.json ({} when absent)."""
+    return load_json_object(Path(run_dir) / MANIFEST, "an object")

@@ -30,6 +30,11 @@ JUDGES = {"direct": "direct", "indirect_unshadowed": "indirect", "indirect_visib
 CURVE_COMPONENTS = {"direct": "direct", "indirect": "indirect_unshadowed", "indirect_visible": "indirect_visible",
                     "combined": "combined"}
 
+# ---------------------------------------------------------------------------- timing
+# The stages of the shared passes every method of a view reads (bench.gl.passes renders them):
+# tables put them first, in this order.
+SHARED_STAGES = ("gbuffer_shadow", "direct_light", "rsm")
+
 # ---------------------------------------------------------------------------- metrics
 # Error metrics, in the order tables show them (bench.analysis.metrics.METRICS documents each);
 # `mean_ratio` is a bias figure (image mean / reference mean: best is closest to 1, not lowest).

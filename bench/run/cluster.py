@@ -44,8 +44,58 @@ from bench.model.scene import compute_facts
 from bench.protocol.registry import load_method
 from bench.protocol.vocabulary import REFERENCE_COMPONENTS, Status, failure_reason
 from bench.run.execute import SharedPassCache, render_outcome
+from reference.api import COMPONENTS, _build_one, _check, get_reference, load_mitsuba
 
 RESUBMISSIONS = 2  # a row whose task the cluster lost (not the row's own failure) is submitted again this often
+
+def timing_lock_path() -> Path:
+    """The host's timing lock file: $GIBENCH_TIMING_LOCK, else gibench-timing.lock in the temp folder."""
+    return Path(os.environ.get("GIBENCH_TIMING_LOCK") or Path(tempfile.gettempdir()) / "gibench-timing.lock")
+
+
+@contextlib.contextmanager
+def timing_lock(path: Path | None = None):
+    """Hold the host's timing lock (an exclusive flock) for the block: one timed row per host at a
+    time. Waiting releases the GIL (the worker keeps answering its scheduler); the kernel drops the
+    lock when the holding process exits or is killed, so a dead holder never blocks the host."""
+    path = Path(path) if path is not None else timing_lock_path()
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o644)   # flock needs no write access
+    except OSError as exc:
+        raise ValueError(f"timing lock {path}: cannot open it ({exc.strerror}); set GIBENCH_TIMING_LOCK") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
+
+
+def open_client(scheduler: str | None = None, workers: int | None = None):
+    """(client, cluster or None): a client of `scheduler`, or of a new LocalCluster of `workers` processes."""
+    from distributed import Client, LocalCluster   # Dask starts only for a distributed run
+    if scheduler:
+        try:
+            return Client(scheduler, timeout="20s"), None
+        except OSError as exc:
+            raise ValueError(f"--scheduler {scheduler}: no Dask scheduler answers ({exc})") from None
+    n = int(workers or 1)
+    if not 1 <= n <= 256:
+        raise ValueError(f"--workers {n} outside [1, 256]")
+    cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None,
+                           silence_logs=logging.ERROR)
+    return Client(cluster), cluster
+
+
+def close_client(client, cluster) -> None:
+    try:
+        client.close()
+    finally:
+        if cluster is not None:
+            cluster.close()
+
 
 _STATE: dict = {}   # per worker process: the GL context, loaded scenes and facts, the uploaded scene, shared passes
 
@@ -113,13 +163,11 @@ def render_task(cfg, scene_ref, view: str, method: str, params: dict) -> dict:
 
 def reference_task(scene_ref, view: str, width: int, height: int, component: str, spp_cap: int) -> str:
     """A reference's first pass on a worker, into the shared reference cache; returns its key."""
-    from reference.api import get_reference   # Mitsuba loads on a worker's first reference
     scene = _worker_scene(scene_ref)
     return get_reference(scene, view, width, height, component, spp_cap=spp_cap).key
 
 
 def _reference_line(scene_ref, view: str, width: int, height: int, component: str, spp_cap: int, threads: int) -> str:
-    from reference.api import _build_one
     return _build_one((_worker_scene(scene_ref), view, width, height, component, spp_cap, threads))
 
 
@@ -129,7 +177,6 @@ def build_references(scene_refs: list, width: int, height: int, spp_cap: int, sc
     may fill every core: no timing lock); one line per reference, in completion order."""
     from distributed import as_completed
 
-    from reference.api import COMPONENTS, _check, load_mitsuba
     load_mitsuba()  # fail early, with the install message, before starting processes
     scenes = [(ref, ref if not isinstance(ref, str) else load_scene(ref)) for ref in scene_refs]
     client, cluster = open_client(scheduler, workers)

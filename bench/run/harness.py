@@ -30,7 +30,9 @@ import numpy as np
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, check_gl, read_rgb
 from bench.gl.passes import stages_for_needs
+from bench.gl.profiler import default_clock
 from bench.protocol.method import FrameOutput, resolve_params
+from bench.protocol.results import timing_settled
 from bench.model.scene import Scene, SceneFacts, compute_facts
 
 
@@ -61,7 +63,6 @@ class TimingBudget:
     rel_halfwidth: float = 0.05
 
     def settled(self, samples, min_frames: int, elapsed_s: float) -> bool:
-        from bench.protocol.results import timing_settled
         return timing_settled(samples, min_frames, elapsed_s, self.budget_s, self.max_frames, self.rel_halfwidth)
 
 
@@ -147,7 +148,6 @@ def to_numpy(image, shape) -> np.ndarray:
 def _check_shared(ctx, shared: SharedViewPasses, method_cls, scene: Scene, gpu, camera: str, width: int,
                   height: int, seed: int, shadow_resolution: int) -> None:
     """The lent passes must be exactly the ones run_method would build for this row."""
-    from bench.gl.profiler import default_clock
     passes = shared.passes
     what = f"method '{method_cls.name}': the shared passes given"
     if gpu is not None and passes.gpu is not gpu:

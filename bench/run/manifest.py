@@ -20,11 +20,11 @@ from pathlib import Path
 from bench.gl import gl_info
 from bench.gl.profiler import default_clock
 from bench.protocol import results as store
+from bench.protocol.results import MANIFEST, load_manifest
 from bench.protocol.registry import load_method
 from bench.protocol.versioning import git_commit, method_version
 from bench.run.config import RunConfig, effective_shadow_resolution
 
-MANIFEST = "manifest.json"
 PACKAGES = ("gibench", "moderngl", "numpy", "pandas", "mitsuba", "drjit", "OpenImageIO", "trimesh")
 
 
@@ -98,14 +98,16 @@ def write_manifest(run_dir: Path, ctx, cfg: RunConfig, scenes: dict, facts: dict
         "scene_facts": {name: f.to_dict() for name, f in facts.items()},
         "scene_purposes": {name: s.purpose for name, s in scenes.items()},
         "shadow_resolution": effective_shadow_resolution(cfg),
-        "methods": method_declarations(cfg.methods),
+        # an earlier run into the folder keeps its methods' declarations (its rows are kept too)
+        "methods": {**((read_manifest(run_dir) or {}).get("methods") or {}), **method_declarations(cfg.methods)},
     }
     store.atomic_write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2, default=str))
 
 
 def read_manifest(run_dir: Path) -> dict | None:
+    """The run folder's manifest, None when it is absent or unreadable (nothing to add to)."""
     try:
-        return json.loads((Path(run_dir) / MANIFEST).read_text())
+        return load_manifest(run_dir) or None
     except (OSError, ValueError):
         return None
 

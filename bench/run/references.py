@@ -19,6 +19,8 @@ from bench.protocol import results as store
 from bench.protocol.vocabulary import IMAGE_COMPONENTS, JUDGES, REFERENCE_COMPONENTS, Status, failure_reason
 from bench.run.config import RunConfig, cache_root
 from bench.run.row_cache import json_default
+from reference.api import ReferenceUnavailable, get_reference
+from tqdm import tqdm
 
 
 class ReferenceProvider:
@@ -60,13 +62,6 @@ class ReferenceProvider:
             return self._refs[key]
         ref = None
         if self._unavailable is None:
-            try:
-                from reference.api import ReferenceUnavailable, get_reference
-            except ImportError as exc:
-                self._unavailable = f"reference package unavailable ({exc})"
-                self.log(f"gibench: {self._unavailable}; error columns left empty")
-                self._refs[key] = None
-                return None
             cap = int(self.cfg.reference_spp_cap)
             if target_mse is None:
                 cap = min(cap, self.REFERENCE_FIRST_PASS_SPP)
@@ -115,7 +110,6 @@ class ReferenceProvider:
                     jobs.append((row, refs))
         progress = None
         if self.cfg.progress and jobs:
-            from tqdm import tqdm
             progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr, desc="error metrics")
         memo = cache_root() / "metrics"
         try:
@@ -146,7 +140,6 @@ class ReferenceProvider:
             return
         progress = None
         if self.cfg.progress and self._rows:
-            from tqdm import tqdm
             progress = tqdm(total=len(self._rows), unit="view", dynamic_ncols=True, file=sys.stderr,
                             desc="refining references")
         try:

@@ -18,6 +18,9 @@ import json
 import math
 from pathlib import Path
 
+from bench.model import scenefile
+from bench.model.scene import SceneError, compute_facts
+
 QUAD_OBJ = "v 0 0 0\nv 1 0 0\nv 1 0 1\nv 0 0 1\nf 1 2 3\nf 1 3 4\n"
 MESH_FILES = {
     "quad": QUAD_OBJ,
@@ -78,14 +81,12 @@ class FuzzFailure(AssertionError):
 def check_document(text: str, mesh: str, workdir: Path) -> str:
     """Write the document and mesh file into `workdir`, load it; 'scene' or 'error' when the property
     holds, FuzzFailure otherwise."""
-    from bench.model.scene import SceneError, compute_facts
-    from bench.model.scenefile import load_scene_file
     workdir.mkdir(parents=True, exist_ok=True)
     (workdir / "m.obj").write_text(MESH_FILES[mesh], encoding="utf-8")
     path = workdir / "scene.toml"
     path.write_text(text, encoding="utf-8")
     try:
-        scene = load_scene_file(path)
+        scene = scenefile.load_scene_file(path)
         compute_facts(scene)
     except SceneError as exc:
         msg = str(exc)

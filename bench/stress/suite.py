@@ -1,8 +1,8 @@
 """`gibench stress`: the numerical stability stress suite (issue #12).
 
-Runs perturbed variants of corpus scenes through every method (bench.run.harness.run_method, the
-runner's own machinery) and through the Mitsuba references (reference.api.get_reference, the
-content-addressed cache), and writes one table row per (scene, perturbation, target), target
+Runs perturbed variants of corpus scenes through every method (bench.run.execute.render_outcome,
+the function every row of every run is rendered through: bench.stress.case) and through the
+Mitsuba references (reference.api.get_reference, the content-addressed cache), and writes one table row per (scene, perturbation, target), target
 being a method or a reference component:
 
 * `nan_pixels`, `inf_pixels`, `negative_pixels`: pixels with a NaN / infinite / negative channel
@@ -16,7 +16,7 @@ being a method or a reference component:
   error / error_base - 1;
 * `tolerance`, `criterion`, `verdict` (pass / fail / documented / skipped).
 
-Perturbations (`--quick` runs the marked subset, 32x24, 16 spp references):
+Perturbations (bench.stress.variants; `--quick` runs the marked subset, 32x24, 16 spp references):
 
   family      name                   kind         what
   determinism repeat                 invariance   the unperturbed case again, same seed (every figure exactly 0)
@@ -28,7 +28,7 @@ Perturbations (`--quick` runs the marked subset, 32x24, 16 spp references):
               grazing_light
   params      params:NAME=VALUE      robustness   each declared Param at its low and high end, each
                                                   choice, the other boolean (quick: quality knobs at their low end)
-  invalid     nan_vertex, ...        rejection    NaN / Inf input must raise SceneError, one line
+  invalid     nan_vertex, ...        rejection    NaN / Inf input must raise SceneError, one line (bench.stress.invalid)
   fuzz        toml_fuzz              property     hypothesis fuzzing of the TOML reader (bench.stress.fuzz)
 
 `--only FAMILY,...` runs some families (the unperturbed renders always run: they are the baseline).
@@ -41,10 +41,11 @@ against its own noise; a reference's are max(TOLERANCE_FLOOR, NOISE_FACTOR x the
 figure for two independent estimates, from the two variance images). The `repeat` row renders
 the unperturbed case twice with the same seed: every figure must be exactly 0. A *robustness*
 perturbation only requires finite, non-negative images (its change and error figures are
-reported, not judged). A run that raises is a failure; SkipRow is "skipped".
+reported, not judged). A run that raises is a failure; SkipRow is "skipped". The figures:
+bench.stress.figures.
 
-"documented": a failure that the target's manual documents. A method's manual is its docstring
-(or a `stress_limits` ClassVar {pattern: reason}); a line
+"documented": a failure that the target's manual documents (bench.stress.limits). A method's manual
+is its docstring (or a `stress_limits` ClassVar {pattern: reason}); a line
 
     Stress limit translate=1e+05R: float32 positions, shadow acne above 1e4 radii (change 0.3)
 
@@ -53,30 +54,43 @@ the reason is the rest of that one line (a wrapped continuation is not read: kee
 The references' manual is the docstring of the `reference` package and of reference.integrators.
 
 Run folder: `stress.csv` (the table), `stress.json` (configuration, machine, fuzz outcome),
-`stress.html` (the report page, reports/templates/stress.html), `images/<scene>/<variant>/<target>/*.exr`.
-`isolate` runs cases in a child process with a timeout and a memory cap (`params`, the default of
-the full suite: the parameter extremes, where a count at its maximum may exhaust the machine).
+`images/<scene>/<variant>/<target>/*.exr`, and `stress.html`, the report page that `gibench stress`
+(bench.cli.stress) builds from the folder after the suite (reports.stress.build_stress_report).
+`--isolate` runs cases in a child process with a timeout and a memory cap (bench.stress.isolate;
+`params`, the default of the full suite: the parameter extremes, where a count at its maximum may
+exhaust the machine).
 """
 from __future__ import annotations
 
 import datetime as _dt
-import fnmatch
 import json
 import os
-import re
-import subprocess
-import sys
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 import pandas as pd
 
-from bench.stress import perturb
-from bench.protocol.method import FrameOutput, SkipRow, resolve_params
+from bench.gl import create_context, gl_info
+from bench.model.corpus import load_scene
+from bench.model.imageio import write_exr
 from bench.model.scene import Scene, SceneError
+from bench.protocol import results as store
+from bench.protocol.method import resolve_params
+from bench.protocol.registry import load_method
+from bench.protocol.versioning import git_commit
+from bench.protocol.vocabulary import REFERENCE_COMPONENTS, Status, failure_reason
+from bench.run.manifest import package_versions
+from bench.run.plan import default_run_dir, prepare_run_dir
+from bench.stress import fuzz as stress_fuzz
+from bench.stress.case import CaseResult, run_case
+from bench.stress.figures import (error_of, image_changes, mean_change, pixel_counts, reference_mean_noise,
+                                  reference_noise_change, relative_change)
+from bench.stress.invalid import invalid_input_checks
+from bench.stress.isolate import CASE_TIMEOUT_S, run_case_isolated
+from bench.stress.limits import documented_limits, match_limit
+from bench.stress.variants import Variant, param_variants, scene_variants
 
 # the procedural scenes of the corpus (each isolates one difficulty; the real ones are too large for
 # dozens of perturbed copies at interactive cost)
@@ -87,267 +101,12 @@ QUICK_RESOLUTION = (32, 24)
 FULL_RESOLUTION = (64, 48)
 QUICK_REFERENCE_SPP = 16
 FULL_REFERENCE_SPP = 64
-SHADOW_RESOLUTION = 512       # shared shadow maps: 8x the largest image side of the suite, a quarter of the runner's cost
-CASE_TIMEOUT_S = 300.0
-WORKER_MEMORY_BYTES = 6 << 30
-REFERENCE_COMPONENTS = ("direct", "indirect_unshadowed", "indirect_visible")
 FAMILIES = ("determinism", "scale", "translate", "degenerate", "grazing", "params", "invalid", "fuzz")
 COLUMNS = ("scene", "view", "family", "perturbation", "kind", "target", "name", "params", "status", "nan_pixels",
            "inf_pixels", "negative_pixels", "min_value", "change", "change_indirect", "mean_change", "error_base", "error",
            "error_change", "tolerance", "criterion", "verdict", "note", "image_dir")
 
 
-# ---------------------------------------------------------------------------- perturbations
-@dataclass(frozen=True)
-class Variant:
-    """One scene perturbation: `build(scene, view) -> Scene`."""
-    name: str
-    family: str
-    kind: str                   # "invariance" or "robustness"
-    build: Callable
-    quick: bool = False
-
-
-def scene_variants(quick: bool) -> list[Variant]:
-    out = []
-    for s in (1e-4, 1e-2, 1e2, 1e4):
-        out.append(Variant(f"scale={s:.0e}", "scale", "invariance",
-                           lambda sc, v, s=s: perturb.scale(sc, s), quick=s in (1e-4, 1e4)))
-    for k in (1e3, 1e4, 1e5):
-        out.append(Variant(f"translate={k:.0e}R", "translate", "invariance",
-                           lambda sc, v, k=k: perturb.translate(sc, k), quick=k == 1e4))
-    for name, fn in perturb.DEGENERATE.items():
-        out.append(Variant(name, "degenerate", "invariance", lambda sc, v, fn=fn: fn(sc),
-                           quick=name in ("sliver", "t_junction")))
-    out.append(Variant("grazing_camera", "grazing", "robustness", lambda sc, v: perturb.grazing_camera(sc, v), quick=True))
-    out.append(Variant("grazing_light", "grazing", "robustness", lambda sc, v: perturb.grazing_light(sc)))
-    return [v for v in out if v.quick or not quick]
-
-
-def param_variants(cls, quick: bool) -> list[tuple[str, dict]]:
-    """(name, overrides) of `cls`'s parameters at the ends of their declared ranges.
-
-    Full: every numeric Param at its low and high end, every other choice, the other boolean.
-    Quick: the quality knobs (the counts a user turns down first) at their low end."""
-    out = []
-    for pname, p in cls.params.items():
-        if quick:
-            if p.quality and p.low is not None and p.low != p.default:
-                out.append((pname, p.low))
-            continue
-        if p.choices is not None:
-            out += [(pname, c) for c in p.choices if c != p.default]
-        elif isinstance(p.default, bool):
-            out.append((pname, not p.default))
-        else:
-            for end in (p.low, p.high):
-                if end is not None and end != p.default:
-                    out.append((pname, int(end) if isinstance(p.default, int) else float(end)))
-    return [(f"params:{k}={v:g}" if isinstance(v, float) else f"params:{k}={v}", {k: v}) for k, v in out]
-
-
-# ---------------------------------------------------------------------------- image figures
-def pixel_counts(*images) -> dict:
-    """NaN / Inf / negative pixel counts over `images` together (a pixel counts once per image)."""
-    nan = inf = neg = 0
-    low = np.inf
-    for img in images:
-        a = np.asarray(img, dtype=np.float64)[..., :3]
-        nan += int(np.isnan(a).any(axis=-1).sum())
-        inf += int(np.isinf(a).any(axis=-1).sum())
-        neg += int((a < 0).any(axis=-1).sum())
-        finite = a[np.isfinite(a)]
-        if finite.size:
-            low = min(low, float(finite.min()))
-    return {"nan_pixels": nan, "inf_pixels": inf, "negative_pixels": neg, "min_value": low if np.isfinite(low) else np.nan}
-
-
-def finite(img) -> np.ndarray:
-    return np.nan_to_num(np.asarray(img, dtype=np.float64)[..., :3], nan=0.0, posinf=0.0, neginf=0.0)
-
-
-def relative_change(image, base) -> float:
-    """sum |I - I0| / sum |I0| over every pixel and channel (non-finite values count as 0)."""
-    a, b = finite(image), finite(base)
-    if a.shape != b.shape:
-        return float("nan")
-    denom = float(np.abs(b).sum())
-    diff = float(np.abs(a - b).sum())
-    if denom == 0.0:
-        return 0.0 if diff == 0.0 else float("inf")
-    return diff / denom
-
-
-def mean_change(image, base) -> float:
-    """mean(I) / mean(I0) - 1 (signed; non-finite values count as 0)."""
-    a, b = float(finite(image).mean()), float(finite(base).mean())
-    if b == 0.0:
-        return 0.0 if a == 0.0 else float("inf")
-    return a / b - 1.0
-
-
-def reference_mean_noise(base, other) -> float:
-    """Standard deviation of mean(I) / mean(I0) - 1 for two independent estimates (variance images)."""
-    n = np.asarray(base.variance).size
-    var = float(np.asarray(base.variance, np.float64).sum() + np.asarray(other.variance, np.float64).sum()) / n ** 2
-    denom = float(finite(base.mean).mean())
-    return float(np.sqrt(var)) / denom if denom > 0 else 0.0
-
-
-def reference_noise_change(base, other) -> float:
-    """Expected relative L1 difference of two independent estimates (means + variance images)."""
-    var = np.asarray(base.variance, np.float64) + np.asarray(other.variance, np.float64)
-    denom = float(np.abs(finite(base.mean)).mean())
-    if denom == 0.0:
-        return 0.0
-    return float(np.sqrt(2.0 / np.pi * var.mean())) / denom
-
-
-def error_of(images: dict, refs: dict | None) -> dict:
-    """relMSE of combined and indirect against the references (NaN without references)."""
-    if not refs or any(refs.get(c) is None for c in REFERENCE_COMPONENTS):
-        return {"combined": float("nan"), "indirect": float("nan")}
-    from bench.analysis.evaluation import coverage_mask
-    from bench.analysis.metrics import relmse
-    imgs = {k: finite(v).astype(np.float32) for k, v in images.items()}
-    imgs["combined"] = imgs["direct"] + imgs["indirect"]
-    ref_means = {c: finite(refs[c].mean).astype(np.float32) for c in REFERENCE_COMPONENTS}
-    mask = coverage_mask(imgs, ref_means)
-    if not mask.any():
-        return {"combined": float("nan"), "indirect": float("nan")}
-    return {"combined": float(relmse(imgs["combined"], ref_means["direct"] + ref_means["indirect_visible"], mask)),
-            "indirect": float(relmse(imgs["indirect"], ref_means["indirect_unshadowed"], mask))}
-
-
-# ---------------------------------------------------------------------------- documented limits
-# "Stress limit <pattern>: <reason>": the pattern may itself hold colons (params:NAME=VALUE), so
-# it ends at the last colon followed by white space.
-_LIMIT_LINE = re.compile(r"^\s*[-*]?\s*Stress limit\s+(\S+)\s*:\s+(.+?)\s*$", re.MULTILINE)
-
-
-def documented_limits(target) -> dict:
-    """{fnmatch pattern: reason} from a method class (docstring lines and `stress_limits`), or for
-    the string "reference" from the reference package's docstrings."""
-    texts, limits = [], {}
-    if target == "reference":
-        import importlib
-        for mod in ("reference", "reference.integrators"):
-            try:
-                texts.append(importlib.import_module(mod).__doc__ or "")
-            except Exception:  # a reference package that fails to import documents nothing
-                pass
-    else:
-        # the manual is the method module's docstring; a class may also carry its own
-        import sys
-        module = sys.modules.get(getattr(target, "__module__", ""), None)
-        texts.append(getattr(module, "__doc__", "") or "")
-        texts.append(getattr(target, "__doc__", "") or "")
-        limits.update(dict(getattr(target, "stress_limits", {}) or {}))
-    for text in texts:
-        for pattern, reason in _LIMIT_LINE.findall(text):
-            limits.setdefault(pattern, reason)
-    return limits
-
-
-def match_limit(limits: dict, perturbation: str) -> str | None:
-    for pattern, reason in limits.items():
-        if fnmatch.fnmatchcase(perturbation, pattern):
-            return reason
-    return None
-
-
-# ---------------------------------------------------------------------------- running one case
-def _probe(cls):
-    """A subclass of method `cls` that keeps frame 0's raw images (NaN and Inf included) and hands
-    the harness finite ones, so NaN / Inf / negative pixels are counted instead of aborting."""
-    from bench.run.harness import to_numpy
-
-    def render(self, frame, prof):
-        out = cls.render(self, frame, prof)
-        if frame.index != 0:
-            return out
-        shape = (frame.height, frame.width, 3)
-        raw = {"direct": to_numpy(out.direct, shape).copy(), "indirect": to_numpy(out.indirect, shape).copy()}
-        type(self).raw = raw
-        return FrameOutput(np.nan_to_num(raw["direct"], nan=0.0, posinf=0.0, neginf=0.0),
-                           np.nan_to_num(raw["indirect"], nan=0.0, posinf=0.0, neginf=0.0),
-                           out.skipped_stages, out.extra)
-
-    probe = type(cls.__name__, (cls,), {"render": render, "raw": None, "__module__": cls.__module__,
-                                         "__doc__": cls.__doc__})
-    return probe
-
-
-@dataclass
-class CaseResult:
-    status: str                       # "ok", "skipped: ...", "failed: ..."
-    images: dict | None = None        # {"direct", "indirect"} raw float32 HxWx3
-
-
-def run_case(ctx, cls, scene: Scene, view: str, width: int, height: int, params: dict, seed: int) -> CaseResult:
-    """One method on one view through bench.run.harness.run_method (1 warm-up frame, 1 timed frame)."""
-    from bench.run.harness import run_method
-    probe = _probe(cls)
-    try:
-        run_method(ctx, probe, scene, view, width, height, params, seed=seed, warmup=1, frames=1,
-                   shadow_resolution=SHADOW_RESOLUTION)
-    except SkipRow as exc:
-        return CaseResult(f"skipped: {exc}")
-    except Exception as exc:
-        ctx.error  # clear a pending GL error so the next case starts clean
-        reason = " ".join(str(exc).split()) or type(exc).__name__
-        return CaseResult(f"failed: {type(exc).__name__}: {reason}"[:300])
-    if probe.raw is None:
-        return CaseResult("failed: no frame rendered")
-    return CaseResult("ok", probe.raw)
-
-
-def run_case_isolated(spec: dict, timeout: float) -> CaseResult:
-    """`run_case` in a child process (python -m bench.stress.suite SPEC.json) with a timeout and a memory cap."""
-    with tempfile.TemporaryDirectory(prefix="gibench-stress-") as tmp:
-        spec = dict(spec, out=str(Path(tmp) / "case.npz"))
-        spec_path = Path(tmp) / "case.json"
-        spec_path.write_text(json.dumps(spec))
-        try:
-            proc = subprocess.run([sys.executable, "-m", "bench.stress.suite", str(spec_path)], capture_output=True,
-                                  text=True, timeout=timeout, env=dict(os.environ, PYTHONUNBUFFERED="1"))
-        except subprocess.TimeoutExpired:
-            return CaseResult(f"failed: timeout after {timeout:g} s")
-        if proc.returncode < 0:
-            return CaseResult(f"failed: crashed (signal {-proc.returncode})")
-        if proc.returncode != 0:
-            lines = [l for l in proc.stderr.strip().splitlines() if l.strip()]
-            return CaseResult(f"failed: worker exit {proc.returncode}: {lines[-1] if lines else '?'}"[:300])
-        result = json.loads((Path(tmp) / "case.json.out").read_text())
-        if result["status"] != "ok":
-            return CaseResult(result["status"])
-        with np.load(spec["out"]) as z:
-            return CaseResult("ok", {"direct": z["direct"], "indirect": z["indirect"]})
-
-
-def _worker_main(spec_path: str) -> int:
-    import resource
-    try:
-        resource.setrlimit(resource.RLIMIT_DATA, (WORKER_MEMORY_BYTES, WORKER_MEMORY_BYTES))
-    except (ValueError, OSError):
-        pass
-    spec = json.loads(Path(spec_path).read_text())
-    from bench.model.corpus import load_scene
-    from bench.gl import create_context
-    from bench.protocol.registry import load_method
-    scene = load_scene(spec["scene"])
-    if spec.get("variant"):
-        variant = next(v for v in scene_variants(False) if v.name == spec["variant"])
-        scene = variant.build(scene, spec["view"])
-    res = run_case(create_context(), load_method(spec["method"]), scene, spec["view"], spec["width"],
-                   spec["height"], spec["params"], spec["seed"])
-    if res.images is not None:
-        np.savez(spec["out"], **res.images)
-    Path(spec_path + ".out").write_text(json.dumps({"status": res.status}))
-    return 0
-
-
-# ---------------------------------------------------------------------------- the suite
 @dataclass
 class StressConfig:
     scenes: list
@@ -393,8 +152,9 @@ class StressConfig:
 
 
 class StressSuite:
+    """One run of the suite: its configuration, its run folder and the table's rows so far."""
+
     def __init__(self, cfg: StressConfig, log=print):
-        from bench.run.plan import default_run_dir, prepare_run_dir as _prepare_run_dir
         self.cfg = cfg.resolve()
         self.log = log
         if cfg.out:
@@ -402,14 +162,13 @@ class StressSuite:
         else:
             stamp = default_run_dir(Path("runs"))
             self.run_dir = stamp.with_name("stress-" + stamp.name)
-        _prepare_run_dir(self.run_dir)
+        prepare_run_dir(self.run_dir)
         self.rows: list[dict] = []
         self.references_off: str | None = None if cfg.references else "disabled (--no-reference)"
         self.fuzz: dict | None = None
 
     # -------------------------------------------------------------- inputs
     def _methods(self) -> list:
-        from bench.protocol.registry import load_method
         out = []
         for m in self.cfg.methods:
             if isinstance(m, str):
@@ -424,7 +183,6 @@ class StressSuite:
     def _scene(self, item) -> tuple[Scene, str | None]:
         if isinstance(item, Scene):
             return item, None
-        from bench.model.corpus import load_scene
         return load_scene(item), str(item)
 
     def _view(self, scene: Scene) -> str:
@@ -457,7 +215,7 @@ class StressSuite:
                 self.log(f"gibench stress: {self.references_off}; reference rows left out")
                 return None
             except Exception as exc:
-                refs[comp] = f"failed: {type(exc).__name__}: {' '.join(str(exc).split())}"[:300]
+                refs[comp] = Status.failed(failure_reason(exc))
         return refs
 
     # -------------------------------------------------------------- rows
@@ -473,11 +231,11 @@ class StressSuite:
     def _judge(row: dict, limits: dict, tolerances: dict | None = None) -> None:
         """Set row["verdict"] (and the note): skipped, pass, fail or documented."""
         status = str(row["status"])
-        if status.startswith("skipped"):
+        if Status.kind(status) == Status.SKIPPED:
             row["verdict"] = "skipped"
             return
         problems = []
-        if status != "ok":
+        if status != Status.OK:
             problems.append(status)
         else:
             for col, what in (("nan_pixels", "NaN"), ("inf_pixels", "Inf"), ("negative_pixels", "negative")):
@@ -496,7 +254,6 @@ class StressSuite:
         row["note"] = f"{note}; {row['note']}" if row["note"] else note
 
     def _save_images(self, rel: str, images: dict) -> str:
-        from bench.model.imageio import write_exr
         for comp, img in images.items():
             write_exr(self.run_dir / rel / f"{comp}.exr", np.asarray(img, dtype=np.float32))
         return rel
@@ -510,7 +267,6 @@ class StressSuite:
 
     # -------------------------------------------------------------- main loop
     def run(self) -> pd.DataFrame:
-        from bench.gl import create_context
         cfg = self.cfg
         ctx = create_context()
         methods = self._methods()
@@ -533,7 +289,7 @@ class StressSuite:
             self._invalid_inputs()
         if "fuzz" in cfg.families:
             self._fuzz()
-        return self.finish()
+        return self.finish(ctx)
 
     def _unperturbed(self, ctx, scene, view, methods) -> dict:
         """Each method's unperturbed images (seed s), its seed s + 1 images (its noise) and a row
@@ -543,7 +299,7 @@ class StressSuite:
         for mname, cls in methods:
             if isinstance(cls, Exception):
                 self._row(scene.name, view, "load", "load", "robustness", "method", mname,
-                          status=f"failed: {' '.join(str(cls).split())}"[:300], verdict="fail",
+                          status=Status.failed(failure_reason(cls)), verdict="fail",
                           criterion="the method loads")
                 continue
             res = run_case(ctx, cls, scene, view, cfg.width, cfg.height, {}, cfg.seed)
@@ -561,10 +317,7 @@ class StressSuite:
                                       "(the same seed twice gives the same image)")
             if again is not None and again.images is not None:
                 row.update(pixel_counts(again.images["direct"], again.images["indirect"]))
-                comb = lambda im: finite(im["direct"]) + finite(im["indirect"])
-                row["change"] = relative_change(comb(again.images), comb(res.images))
-                row["change_indirect"] = relative_change(again.images["indirect"], res.images["indirect"])
-                row["mean_change"] = mean_change(comb(again.images), comb(res.images))
+                row.update(image_changes(again.images, res.images))
                 row["tolerance"] = 0.0
             self._judge(row, documented_limits(cls), {"change": 0.0, "change_indirect": 0.0, "mean_change": 0.0})
         return base
@@ -575,10 +328,8 @@ class StressSuite:
         res, noisy = base_entry
         if noisy is None or noisy.images is None:
             return TOLERANCE_FLOOR, TOLERANCE_FLOOR, TOLERANCE_FLOOR, f"floor {TOLERANCE_FLOOR:g}"
-        comb = lambda r: finite(r.images["direct"]) + finite(r.images["indirect"])
-        n_comb = relative_change(comb(noisy), comb(res))
-        n_ind = relative_change(noisy.images["indirect"], res.images["indirect"])
-        n_mean = abs(mean_change(comb(noisy), comb(res)))
+        noise = image_changes(noisy.images, res.images)
+        n_comb, n_ind, n_mean = noise["change"], noise["change_indirect"], abs(noise["mean_change"])
         tols = [max(TOLERANCE_FLOOR, NOISE_FACTOR * n) for n in (n_comb, n_ind, n_mean)]
         return (*tols, f"max({TOLERANCE_FLOOR:g}, {NOISE_FACTOR:g} x seed-to-seed change "
                        f"{n_comb:.2g} / {n_ind:.2g} / {n_mean:.2g})")
@@ -593,10 +344,7 @@ class StressSuite:
             row["image_dir"] = self._save_images(f"images/{scene.name}/{variant_name}/{mname}".replace(":", "_"),
                                                  res.images)
             if compare_image and base_res is not None and base_res.images is not None:
-                comb = lambda im: finite(im["direct"]) + finite(im["indirect"])
-                row["change"] = relative_change(comb(res.images), comb(base_res.images))
-                row["change_indirect"] = relative_change(res.images["indirect"], base_res.images["indirect"])
-                row["mean_change"] = mean_change(comb(res.images), comb(base_res.images))
+                row.update(image_changes(res.images, base_res.images))
             row["error"] = error_of(res.images, refs)["combined"]
             if base_res is not None and base_res.images is not None:
                 row["error_base"] = error_of(base_res.images, base_refs)["combined"]
@@ -623,13 +371,13 @@ class StressSuite:
             pscene = variant.build(scene, view)
         except Exception as exc:
             self._row(scene.name, view, variant.name, variant.family, variant.kind, "scene", "perturbation",
-                      status=f"failed: {type(exc).__name__}: {' '.join(str(exc).split())}"[:300], verdict="fail",
+                      status=Status.failed(failure_reason(exc)), verdict="fail",
                       criterion="the perturbed scene builds")
             return
         invariance = variant.kind == "invariance"
         if variant.family == "degenerate":
             self._row(scene.name, view, variant.name, variant.family, variant.kind, "scene", "scene model",
-                      status="ok", verdict="pass", criterion="information",
+                      status=Status.OK, verdict="pass", criterion="information",
                       note=f"{pscene.triangle_count - scene.triangle_count:+d} triangles, "
                            f"{pscene.dropped_degenerate} dropped as zero-area, "
                            f"{pscene.dropped_duplicates} dropped as repeated")
@@ -638,7 +386,7 @@ class StressSuite:
         for comp in REFERENCE_COMPONENTS if refs is not None else ():
             ref, b = refs[comp], (base_refs or {}).get(comp)
             row = self._row(scene.name, view, variant.name, variant.family, variant.kind, "reference", comp,
-                            status="ok" if not isinstance(ref, str) else ref, criterion="finite, >= 0")
+                            status=Status.OK if not isinstance(ref, str) else ref, criterion="finite, >= 0")
             tolerances = None
             if not isinstance(ref, str):
                 row.update(pixel_counts(ref.mean))
@@ -685,7 +433,7 @@ class StressSuite:
             resolve_params(cls, overrides)
         except Exception as exc:
             self._row(scene.name, view, pname, "params", "robustness", "method", mname,
-                      status=f"failed: {' '.join(str(exc).split())}"[:300], verdict="fail",
+                      status=Status.failed(failure_reason(exc)), verdict="fail",
                       params=json.dumps(overrides), criterion="a declared end of the range is accepted")
             return
         isolated = self.cfg.isolate in ("params", "all") and spec is not None
@@ -698,17 +446,16 @@ class StressSuite:
     def _invalid_inputs(self) -> None:
         for name, problem in invalid_input_checks().items():
             self._row("-", "-", name, "invalid", "rejection", "scene model", "Scene / scene file reader",
-                      status="ok" if problem is None else f"failed: {problem}",
+                      status=Status.OK if problem is None else Status.failed(problem),
                       verdict="pass" if problem is None else "fail",
                       criterion="SceneError, one line, naming the culprit", note=problem or "")
 
     def _fuzz(self) -> None:
-        from bench.stress import fuzz as stress_fuzz
         try:
             import hypothesis  # noqa: F401
         except ImportError:
             self._row("-", "-", "toml_fuzz", "fuzz", "property", "scene reader", "load_scene_file",
-                      status="skipped: hypothesis is not installed", verdict="skipped")
+                      status=Status.skipped("hypothesis is not installed"), verdict="skipped")
             return
         self.log(f"gibench stress: fuzzing the scene file reader ({self.cfg.fuzz_examples} examples)")
         with tempfile.TemporaryDirectory(prefix="gibench-fuzz-") as tmp:
@@ -717,7 +464,7 @@ class StressSuite:
         note = (f"{self.fuzz['examples']} examples: {self.fuzz['scenes']} scenes, {self.fuzz['errors']} one-line errors"
                 if failure is None else f"{failure['problem']} on {failure['document']!r} with mesh {failure['mesh']}")
         self._row("-", "-", "toml_fuzz", "fuzz", "property", "scene reader", "load_scene_file",
-                  status="ok" if failure is None else f"failed: {failure['problem']}"[:300],
+                  status=Status.OK if failure is None else Status.failed(failure["problem"]),
                   verdict="pass" if failure is None else "fail",
                   criterion="a Scene or one SceneError line naming the file", note=note)
 
@@ -730,98 +477,21 @@ class StressSuite:
         os.replace(tmp, self.run_dir / "stress.csv")
         return df
 
-    def finish(self) -> pd.DataFrame:
-        from bench.protocol import results as store
-        from bench.run.manifest import package_versions
-        from bench.protocol.versioning import git_commit
+    def finish(self, ctx) -> pd.DataFrame:
+        """stress.csv and stress.json (configuration, the machine of GL context `ctx`, fuzz outcome,
+        verdict counts). The page, stress.html, is built from the folder by `gibench stress`."""
         df = self._write_table()
         cfg = {k: (str(v) if isinstance(v, Path) else v) for k, v in self.cfg.__dict__.items()
                if k not in ("scenes", "methods")}
         cfg["scenes"] = [getattr(s, "name", s) for s in self.cfg.scenes]
         cfg["methods"] = [getattr(m, "name", m) for m in self.cfg.methods]
-        from bench.gl import create_context, gl_info
         meta = {"created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-                "git_commit": git_commit(), "config": cfg, "machine": gl_info(create_context()),
+                "git_commit": git_commit(), "config": cfg, "machine": gl_info(ctx),
                 "versions": package_versions(), "references": self.references_off or "Mitsuba 3",
                 "tolerance_floor": TOLERANCE_FLOOR, "noise_factor": NOISE_FACTOR, "fuzz": self.fuzz,
                 "counts": summary_counts(df)}
         store.atomic_write_text(self.run_dir / "stress.json", json.dumps(meta, indent=2, default=str))
-        try:
-            from reports.build import build_stress_report
-        except ImportError:
-            return df
-        build_stress_report(self.run_dir)
         return df
-
-
-def invalid_input_checks() -> dict:
-    """{check name: None if bad input is rejected with one clear SceneError line, else the problem}."""
-    from bench.model.scene import Camera, PointLight
-    from bench.model.scenefile import load_scene_file
-    out = {}
-    v = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]], float)
-    light, cam = [PointLight([0, 0, 1], 1.0)], {"main": Camera([0, 0, 3], [0, 0, 0])}
-
-    def expect(name, fn, must_contain):
-        try:
-            fn()
-        except SceneError as exc:
-            msg = str(exc)
-            if len(msg.splitlines()) != 1:
-                out[name] = f"multi-line error {msg!r}"
-            elif not any(word in msg for word in must_contain):
-                out[name] = f"error does not name the culprit: {msg!r}"
-            else:
-                out[name] = None
-            return
-        except Exception as exc:
-            out[name] = f"{type(exc).__name__} instead of SceneError: {' '.join(str(exc).split())}"
-            return
-        out[name] = "accepted"
-
-    for label, value in (("nan", np.nan), ("inf", np.inf), ("-inf", -np.inf)):
-        bad = v.copy()
-        bad[1, 0] = value
-        expect(f"{label}_vertex", lambda bad=bad: Scene.build("s", bad, [[0, 1, 2]], 0.5, light, cam), ("vertex 1",))
-        expect(f"{label}_normal", lambda value=value: Scene.build("s", v, [[0, 1, 2]], 0.5, light, cam,
-                                                                  normals=np.where(v == 1, value, 0.0) + [0, 0, 1]),
-               ("normal",))
-        expect(f"{label}_light", lambda value=value: PointLight([0, value, 1], 1.0), ("position",))
-        expect(f"{label}_camera", lambda value=value: Camera([0, 0, value], [0, 0, 0]), ("eye",))
-    with tempfile.TemporaryDirectory(prefix="gibench-invalid-") as tmp:
-        d = Path(tmp)
-        from bench.stress.fuzz import MESH_FILES, VALID_DOC, toml_document
-        for mesh in ("nan_vertex", "inf_vertex"):
-            (d / f"{mesh}.obj").write_text(MESH_FILES[mesh])
-            doc = json.loads(json.dumps(VALID_DOC))
-            doc["mesh"][0]["file"] = f"{mesh}.obj"
-            (d / f"{mesh}.toml").write_text(toml_document(doc))
-            expect(f"obj_{mesh}", lambda p=d / f"{mesh}.toml": load_scene_file(p), (f"{mesh}.obj",))
-        (d / "m.obj").write_text(MESH_FILES["quad"])
-        for key, where, value in (("translate", "mesh", float("nan")), ("scale", "mesh", float("inf")),
-                                  ("position", "light", float("nan")), ("eye", "camera", float("-inf"))):
-            doc = json.loads(json.dumps(VALID_DOC))
-            table = doc["mesh"][0] if where == "mesh" else doc["light"][0] if where == "light" else doc["camera"]["main"]
-            table[key] = [value, 0.0, 0.0] if key != "scale" else value
-            path = d / f"toml_{key}.toml"
-            path.write_text(toml_document(doc))
-            expect(f"toml_{where}_{key}_nonfinite", lambda p=path: load_scene_file(p), (f"'{key}'",))
-        for label, scale_value, shift, culprit in (("toml_mesh_huge_scale", 1e300, 0.0, "'scale'"),
-                                                   ("toml_mesh_overflow", 1e29, 9.5e29, "vertex")):
-            doc = json.loads(json.dumps(VALID_DOC))
-            doc["mesh"][0]["scale"] = scale_value
-            doc["mesh"][0]["translate"] = [shift, 0.0, 0.0]
-            path = d / f"{label}.toml"
-            path.write_text(toml_document(doc))
-            expect(label, lambda p=path: load_scene_file(p), (culprit,))
-        for label, table in (("light_direction", doc["light"][2]), ("camera_eye", doc["camera"]["main"])):
-            doc = json.loads(json.dumps(VALID_DOC))
-            key = "direction" if label == "light_direction" else "eye"
-            (doc["light"][2] if label == "light_direction" else doc["camera"]["main"])[key] = [1e155, 0.0, 1.0]
-            path = d / f"toml_{label}_overflow.toml"
-            path.write_text(toml_document(doc))
-            expect(f"toml_{label}_overflow", lambda p=path: load_scene_file(p), (f"'{key}'", key))
-    return out
 
 
 def summary_counts(df: pd.DataFrame) -> dict:
@@ -841,7 +511,3 @@ def summary_text(df: pd.DataFrame) -> str:
 def run_stress(cfg: StressConfig, log=print) -> tuple[pd.DataFrame, StressSuite]:
     suite = StressSuite(cfg, log=log)
     return suite.run(), suite
-
-
-if __name__ == "__main__":
-    sys.exit(_worker_main(sys.argv[1]))

@@ -1,9 +1,23 @@
 """`direct`: direct light only (shadow-mapped point, spot and directional lights).
 
 The floor every GI method adds to: its indirect image is zero. Its frame time is the cost of
-the shared passes (GBuffer + shadow maps + direct lighting) that the GI methods also pay.
+the shared passes (GBuffer + shadow maps + direct lighting) that the GI methods also pay, so a
+method's frame over `direct`'s is the overhead ratio the FLC paper quotes.
 
-Parameters: none.
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter | default | range | meaning |
+|-----------|---------|-------|---|
+| (none) | | | |
+<!-- end of parameters -->
+
+Example:
+
+    gibench run --scenes cornell_spot --methods direct,flc --res 128x96 --defaults-only
+
+Stages: none of its own (the shared `gbuffer_shadow` and `direct_light`). Needs: direct,
+shadow_map.
 """
 from bench.protocol.method import FrameOutput, MethodBase
 

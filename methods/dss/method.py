@@ -1,17 +1,24 @@
 """`dss`: Deep Screen Space (Nalbach, Ritschel, Seidel, I3D 2014) for one-bounce diffuse light.
 
+As reimplemented for the comparison in the Forward Light Cuts paper (Sec. 7, Table 2):
+one-bounce, unshadowed diffuse indirect light from surfels of all scene geometry (hidden
+surfaces included), splatted into an interleaved multi-resolution screen-space framebuffer.
+
 Every frame, all of the scene's triangles, hidden ones included (no camera culling), go
 through the tessellator as patches; the control stage picks tessellation levels from each
 triangle's edge lengths and area so that sub-triangles have about the target surfel area
 `a = total scene area / surfel_count`: the surfel density is uniform in object space, and a
 triangle smaller than `a` gives one surfel at its centroid (the tessellator refines, it never
-decimates: the contrast with Forward Light Cuts). The geometry stage turns each sub-triangle
-into a surfel (centroid y, exact area A, the triangle's normal n_y, the shading normal at y,
-and the shadowed direct light on both sides of the shading normal, B = rho E, from the shared
-shadow maps, E averaged over the 4^k centroids of the sub-triangle's k-fold regular
-subdivision, k = `irradiance_splits`) appended to a buffer. Triangles that
-would need more than the tessellator's 64 levels are pre-split once in prepare() into K x K
-sub-patches of their regular subdivision (one patch record per sub-triangle).
+decimates: the contrast with Forward Light Cuts; the original DSS adapts the density to the
+projected size). The geometry stage turns each sub-triangle into a surfel (centroid y, exact
+area A, the triangle's normal n_y, the shading normal at y, and the shadowed direct light on
+both sides of the shading normal, B = rho E, from the shared shadow maps, E averaged over the
+4^k centroids of the sub-triangle's k-fold regular subdivision, k = `irradiance_splits`)
+appended to a buffer; its atomic counter doubles as the splat's indirect draw command. The
+buffer is sized exactly by a count-only run of the same tessellation in prepare() (the count
+depends on geometry only). Triangles that would need more than the tessellator's 64 levels are
+pre-split once in prepare() into K x K sub-patches of their regular subdivision (one patch
+record per sub-triangle; the levels themselves are chosen every frame on the GPU).
 
 Each lit surfel is then splatted (additive RGBA32F blending) as screen-aligned quads into a
 multi-resolution, interleaved framebuffer: a receiver x at view depth z takes the surfel at
@@ -27,8 +34,9 @@ weight M^2, so the expectation is the full sum). A receiver adds the unshadowed 
 geometric normal: Mitsuba's twosided diffuse with shading normals, as `manylights`),
 only within the surfel's cut radius r = R sqrt(lum(B) / (threshold lum(B_max))): the distance at
 which its contribution per unit emitting area, B / (pi^2 d^2), falls under `threshold` times the
-brightest surfel's at one scene radius R. `threshold` 0 cuts nothing. Then each level is
-unshuffled and blurred over (2 blur_radius + 1)^2 same-surface neighbours (normal and
+brightest surfel's at one scene radius R. `threshold` 0 cuts nothing; the threshold is relative
+so that it does not depend on the scene's units, light power or surfel density. Then each level
+is unshuffled and blurred over (2 blur_radius + 1)^2 same-surface neighbours (normal and
 tangent-plane tests), the coarse levels are upsampled with geometry-aware bilinear weights and
 summed, and the receiver's rho/pi is applied: L(x) = rho_x / pi sum_levels E_l(x).
 
@@ -36,55 +44,63 @@ Level l's receiver of level pixel X is the full-resolution pixel X 2^l (the last
 or column on the screen's last pixel), and the upsampling puts X's bilinear node exactly there:
 the receivers nest, so at a pixel that is a receiver of every level each level decides the
 shell at the same point and every surfel is counted by exactly one level (the shells partition
-the surfels; a first version placed the receiver half a pixel from where the upsampling
-assumed it, so a ring of surfels near each shell boundary was counted twice or not at all).
+the surfels: the image there equals the brute-force sum over the surfels, tested).
 
 Rules recorded here: (1) the surfel's radiosity is the mean of rho E over 4^k points of its
 sub-triangle, because a point sample at the centroid misjudges sub-triangles that a spot cone's
-edge crosses (big_floor at the default density: mean bounce 1.12 x Mitsuba with the centroid
-alone, 1.05 with 4 points). (2) The emitter's incident cosine and side use the shading normal,
-the geometric term the face normal (Mitsuba's convention; the face-normal cosine is biased on
-smooth-shaded meshes). (3) A surfel's interleaved sub-buffer (per level and frame) is a hash
-of the frame's seed, its sub-triangle (sub-patch and tessellation coordinates) and its
+edge crosses (NOTES.md: big_floor). (2) The emitter's incident cosine and side use the shading
+normal, the geometric term the face normal (Mitsuba's convention; the face-normal cosine is
+biased on smooth-shaded meshes). (3) A surfel's interleaved sub-buffer (per level and frame) is
+a hash of the frame's seed, its sub-triangle (sub-patch and tessellation coordinates) and its
 triangle's key: the triangle's centroid relative to the scene's centre, in units of the scene
 radius, quantised to 2^-20 (`triangle_keys`; float64 in prepare, stored in the triangle
 record's normal.w). The key does not depend on the triangle's index, winding, the scene's unit
-or position, so the sampling pattern follows the geometry: keyed by the patch index, the stress
-suite's T-junction on 32 of hidden_bounce's triangles shifted the index of every later triangle
-and drew a new pattern for the whole scene (image mean -3.2% at 32x24, seed 0, as much as
-another seed: the mean varies by up to +-4% between seeds at that size); now the image changes
-by its 32 split triangles' surfels only (mean -0.1% .. -0.2% over seeds 0-3, L1 0.2% .. 0.5%).
+or position, so the sampling pattern follows the geometry: re-triangulating part of a scene
+changes the surfels of the split triangles only, not the pattern of the whole scene.
 
-With threshold 0, levels 1 and interleave 1 this is the exact sum over the surfels, which
-converges to the continuous one-bounce integral (and to jittered `manylights`) as
-surfel_count grows.
-Stages: `surfels` (tessellation, surfel shading), `deinterleave` (level receivers in the
-interleaved layout), `splat`, `unshuffle_blur` (unshuffle, blur, upsample, sum).
+With threshold 0, levels 1 and interleave 1 (and blur_radius 0) this is the exact sum over the
+surfels, which converges to the continuous one-bounce integral (and to jittered `manylights`,
+emission `lambert`) as surfel_count grows (tests/methods/test_dss.py).
 
-| parameter          | default | range        | meaning                                                       |
-|--------------------|---------|--------------|---------------------------------------------------------------|
-| surfel_count       | 8192    | 1 .. 1e8     | target surfels over the whole scene: a = total area / count   |
-| irradiance_splits  | 1       | 0 .. 3       | surfel E averaged over 4^k points of its sub-triangle (0: centroid) |
-| threshold          | 0.002   | 0 .. 100     | contribution threshold of the cut radius (0: no cut)          |
-| levels             | 3       | 1 .. 6       | resolution levels of the splat framebuffer                    |
-| interleave         | 2       | 1 .. 8       | M: M x M interleaved sub-buffers per level                    |
-| shell_pixels       | 8.0     | 0.25 .. 256  | S: level 0 radius 2 S pixel footprints, level l ends at 2^(l+1) S |
-| blur_radius        | 1       | 0 .. 8       | blur window (2 b + 1)^2 in level pixels                       |
-| blur_normal_cos    | 0.9     | -1 .. 1      | blur/upsample: min cosine between the normals                 |
-| blur_plane_pixels  | 1.0     | 0 .. 1e4     | blur/upsample: max tangent-plane distance, in pixel footprints |
-| eps_rel            | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius              |
-| max_surfels        | 1.6e7   | 1 .. 1e8     | skip a scene whose surfel count exceeds this                  |
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter         | default  | range          | meaning |
+|-------------------|----------|----------------|---|
+| surfel_count      | 8192     | 1 .. 100000000 | target surfels over the whole scene (target area = total area / count); small triangles still give one surfel each (quality knob; sweep 1024, 4096, 16384, 65536) |
+| threshold         | 0.002    | 0.0 .. 100.0   | cut radius: contribution per unit area below threshold x the brightest surfel's at one scene radius (0: no cut) (quality knob; sweep 0.05, 0.01, 0.002, 0.0005) |
+| irradiance_splits | 1        | 0 .. 3         | surfel irradiance: mean over the 4^k centroids of the sub-triangle's k-fold subdivision (0: the centroid alone) (quality knob) |
+| levels            | 3        | 1 .. 6         | resolution levels of the splat framebuffer |
+| interleave        | 2        | 1 .. 8         | M: M x M interleaved sub-buffers per level (1: none) |
+| shell_pixels      | 8.0      | 0.25 .. 256.0  | S: level 0 takes receivers within 2 S pixel footprints of a surfel, level l those in [2^l, 2^(l+1)) S (splat cost grows as S^2) (quality knob; sweep 2.0, 4.0, 8.0, 16.0) |
+| blur_radius       | 1        | 0 .. 8         | blur window (2 b + 1)^2 in level pixels |
+| blur_normal_cos   | 0.9      | -1.0 .. 1.0    | blur/upsample: minimum cosine between receiver normals |
+| blur_plane_pixels | 1.0      | 0.0 .. 10000.0 | blur/upsample: maximum tangent-plane distance in pixel footprints |
+| eps_rel           | 0.0001   | 1e-07 .. 1.0   | distance clamp eps relative to the scene radius |
+| max_surfels       | 16000000 | 1 .. 100000000 | skip a scene whose surfel count exceeds this |
+<!-- end of parameters -->
 
 Quality ladder (`gibench run`): (surfel_count, threshold) = (2048, 0.01), (8192, 0.002) (default),
 (32768, 0.0005): finer surfels and a farther cut radius together, as the paper's quality settings
 trade splat fill for accuracy.
 
+Example:
+
+    gibench run --scenes cornell_spot --methods dss --res 128x96 --defaults-only
+
+Stages: `surfels` (tessellation, surfel shading), `deinterleave` (level receivers in the
+interleaved layout), `splat`, `unshuffle_blur` (unshuffle, blur, upsample, sum), after the
+shared `gbuffer_shadow` and `direct_light`. Needs: gbuffer, shadow_map, direct.
+
 Scale: every triangle gives at least one surfel, so a 10M-triangle scene needs a 10M-surfel
 buffer (80 B each, 800 MB) beside its 1.1 GB triangle records; `max_surfels` (16M) bounds that.
 These buffers exceed the GL_MAX_SHADER_STORAGE_BLOCK_SIZE llvmpipe reports (128 MB) but are bound
-whole; llvmpipe and desktop GPUs (2 GB and more) address them (highpoly_4m, 320 MB of surfels:
-indirect mean within 2% of ir_unshadowed at 1024 VPLs). The cost is linear in the surfel count:
-the series' slope is in the report's cost-vs-triangles plot.
+whole; llvmpipe and desktop GPUs (2 GB and more) address them. The cost is linear in the surfel
+count: the series' slope is in the report's cost-vs-triangles plot.
+
+Measurements: NOTES.md beside this file holds the figures behind the rules above and the
+history of the receiver placement and the sampling keys.
+
 Stress limit coplanar: coincident coplanar faces both carry surfels, so the overlapped area emits twice while Mitsuba's rays see one surface (cornell_box 64x48: mean +6.3%).
 """
 from __future__ import annotations

@@ -52,7 +52,7 @@ grows with N_avg's count, not against it. The printed D_k = sqrt(S_k) (`reach="e
 gives every level 4 pi VPLs (times the hat's shape factor) whatever N_avg is, and a reach
 D_N = D_near sqrt(4 pi / N_avg) mu^(N/2) that shrinks as N_avg grows (at mu 4, N 5: 2.84,
 1.42, 0.71 R_scene for N_avg 64, 256, 1024). `expected_vpls_reaching` gives the count per level
-under the model; `analysis.count_vpls_reaching` measures it on a scene.
+under the model; `studies.flc_analysis.count_vpls_reaching` measures it on a scene.
 
 Level set (`levels = -1`, the default). A level-k VPL stands for S_k of surface, so when S_k
 is several m^2 a frame rests on a handful of powerful VPLs (the paper's "spikes"); and with the

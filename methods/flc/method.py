@@ -28,17 +28,15 @@ balls and the area use the face. A VPL lit on one side emits on that side.
    geometry shader's cheap decision for every triangle (divergent, or kept by Alg. 1's level
    draw with the same key and hash) and compacts the kept ones in scene order (an ordered scan,
    not an atomic append: same blending order, so the image is bit for bit the single draw's;
-   tested); the draw (`render_indirect`, no read-back) carries only those, a few thousand of
-   conference's 331k triangles. Measured at 320 x 180 (one run, machine under load): the
-   `regular` stage 180 -> 105 ms on conference, 67 -> 52 ms on sponza; the paper's one draw of
-   the whole scene is `regular_selection = single_draw`. Then one draw: its geometry shader classifies
-   each triangle, appends divergent ones to a storage buffer and atomically grows an indirect
-   draw command, and turns each kept regular triangle into one VPL, uniformly jittered over the
-   triangle (`jitter`; at the centroid when off), with the shadowed direct radiosity rho E of
-   both sides, emitted as a quad over the exact screen-space bound of its support (the ball on
-   each lit side, Mara & McGuire's tangent bound) in one random interleaved-sampling tile. The
-   fragment stage reads the GBuffer and adds H S_k f^k(d), d = |x - y| / |<n_t, (x - y)/|x - y|>|
-   (eq. 10, 14).
+   tested); the draw (`render_indirect`, no read-back) carries only those. The paper's one draw
+   of the whole scene is `regular_selection = single_draw`. Then one draw: its geometry shader
+   classifies each triangle, appends divergent ones to a storage buffer and atomically grows an
+   indirect draw command, and turns each kept regular triangle into one VPL, uniformly jittered
+   over the triangle (`jitter`; at the centroid when off), with the shadowed direct radiosity
+   rho E of both sides, emitted as a quad over the exact screen-space bound of its support (the
+   ball on each lit side, Mara & McGuire's tangent bound; a ball crossing the near plane takes
+   the whole screen) in one random interleaved-sampling tile. The fragment stage reads the
+   GBuffer and adds H S_k f^k(d), d = |x - y| / |<n_t, (x - y)/|x - y|>| (eq. 10, 14).
 4. Divergent pass (stage `divergent`): the buffer drawn with `render_indirect` (no CPU
    read-back) as patches through the tessellator, at the smallest uniform level whose largest
    piece is regular (measured once on the tessellator, `tessellation.py`). A divergent triangle
@@ -47,10 +45,10 @@ balls and the area use the face. A VPL lit on one side emits on that side.
    cutoff cone misses its bounding sphere (a conservative test; point and directional lights
    reach every two-sided surface). A left-out piece would be a VPL of zero power (E = 0 on both
    sides), which the splat drops anyway, so the estimate is unchanged (no bias); the pass's
-   work then follows the lit area instead of the scene's (big_floor, 320 x 180: 9 of 810
-   sub-patches drawn, the 1600 m^2 floor is not tessellated). A piece's key is the base
-   triangle's v_rand xor the noise texture at its three vertices' barycentric coordinates
-   (Alg. 2, Fig. 8); then the same splat. Skipped (and recorded as skipped) when the
+   work then follows the lit area instead of the scene's. A piece's key is the base triangle's
+   v_rand xor the noise texture at its three vertices' barycentric coordinates (Alg. 2,
+   Fig. 8); then the same splat. The buffer is sized from the scene facts for all sub-patches
+   (a row needing more than 128 MB is skipped). Skipped (and recorded as skipped) when the
    scene facts say no triangle is divergent, or with `divergent_pass` off (divergent triangles
    are then dropped: Fig. 7 top). The command is reset by a GPU buffer copy and the pass waits
    on a command + storage memory barrier only (no CPU upload, no full barrier in a frame).
@@ -65,12 +63,12 @@ the integral of eq. 4 over every triangle: the limit of `manylights` with `emiss
 many `jitter_frames` (jittered `manylights`), not centroid `manylights` (one VPL at each whole
 triangle's centroid: divergent triangles are split here, so the sums differ). With `jitter`
 off a frame is unbiased only for the centroid sum over the pieces the divergent pass makes
-(a sum no `manylights` setting computes: +8% on cornell_spot at 64x48 against the jittered
-one). Interleaved sampling keeps the expectation (a VPL splats into one of T = 4^L tiles at
-random with weight T); the blur is the one spatial bias. With `last_level_unbounded` false
-(the paper's eq. 16 literally) pairs with d > D_N are cut (`analysis.energy_beyond_support`).
-Progressive mode averages F sub-frames inside one render(); for regular triangles its jitter
-is the same as `manylights`' jitter frame j, so the two converge together.
+(a sum no `manylights` setting computes). Interleaved sampling keeps the expectation (a VPL
+splats into one of T = 4^L tiles at random with weight T); the blur is the one spatial bias.
+With `last_level_unbounded` false (the paper's eq. 16 literally) pairs with d > D_N are cut
+(`studies/flc_analysis.py`, `energy_beyond_support`). Progressive mode averages F sub-frames
+inside one render(); for regular triangles its jitter is the same as `manylights`' jitter
+frame j, so the two converge together.
 
 Corrections to the paper (details and derivations in `levels.py`):
 - eq. 3 prints P(t in L^k) = A / S_bar_k; by Alg. 1 that is the probability of levels 0..k.
@@ -86,8 +84,6 @@ Corrections to the paper (details and derivations in `levels.py`):
   level k: one VPL per S_k) N_avg VPLs of every level reach a receiver when
   4 pi D_k^2 / S_k = N_avg, i.e. D_k = D_near mu^(k/2) (`reach="eq1_intent"`, default; D_0 =
   D_near). `reach="eq18_printed"` keeps the literal print for comparison.
-  `analysis.count_vpls_reaching` measures the count on a scene (4x N_avg: 3.7-4.1x the VPLs on
-  cornell_spot; the printed eq. 18 with the former defaults: 0.8x).
 
 Near field (`near_field = disc_element`, default): eq. 5 clamps d_i = max(eps, |x - y|) with eps
 a user parameter "to avoid singularities". A level-k VPL stands for S_k of surface (its weight in
@@ -102,180 +98,80 @@ is the light a VPL loses within a few r_k of a receiver; r_k^2 / D_{k-1}^2 = 4 m
 inner edge of a level k >= 1's support, and r_k -> 0 as N_avg grows (consistent). Other settings:
 `vpl_disc` clamps d_i >= max(eps, r_k) (the same bound at d <= r_k, the point's light beyond);
 `paper_eps` is eq. 5 as printed (eps only: unbiased for `manylights`' point sum, the setting of
-the unbiasedness tests). Why: sponza's sun lights a small share of its surface (the sun carries
-95% of the bounce), so a pixel's bounce rests on the few sunlit level-0 VPLs near it, and a
-sunlit VPL a little more than r_0 away brightens it many times over (the relMSE metric weighs
-such pixels most). Measured on sponza at 320 x 180, 16 seeds, relmse.indirect against Mitsuba
-mean / median / max (image mean over Mitsuba's): `paper_eps` 2.09 (4 seeds; single VPLs of
-1.7 m^2 lit pixels a few cm away up to 1e5 times their radiosity), `vpl_disc` 0.74 / 0.64 / 1.39
-(1.05), `disc_element` 0.50 / 0.41 / 1.15 (0.97); `direct`: 0.76. On the procedural scenes the
-image means move by under 1% (8-seed table below), on sibenik and conference the error falls
-(0.050 -> 0.044, 0.105 -> 0.098).
+the unbiasedness tests). Why: where a small sunlit share of the surface carries the bounce
+(sponza), a pixel's bounce rests on the few lit level-0 VPLs near it, and a point VPL a little
+more than r_0 away brightens it many times over; the disc element takes those spikes out.
 
 Documented rules (a user setting always wins):
 - D_near (`dnear_rule = lit`, default): D_near = min(dnear_factor R_scene, sqrt(A_lit / (4 pi))),
   A_lit the area a light's emission reaches, occlusion ignored (`levels.lit_area`: all of the
   surface when a point or directional light is present, else the part inside a spot's cutoff
-  cone, measured once in prepare on pieces of (dnear_factor R_scene / 16)^2). Why: eq. 1 models the surface
-  within D of a receiver as 4 pi D^2 and keeps one level-0 VPL per S_0, so that N_avg VPLs lie
-  within D_near; only lit VPLs carry light, and when the lit surface is smaller than
-  4 pi D_near^2 a pixel is lit by A_lit / S_0 < N_avg of them. Bounding D_near so that
+  cone, measured once in prepare on pieces of (dnear_factor R_scene / 16)^2). Why: eq. 1 models
+  the surface within D of a receiver as 4 pi D^2 and keeps one level-0 VPL per S_0, so that
+  N_avg VPLs lie within D_near; only lit VPLs carry light, and when the lit surface is smaller
+  than 4 pi D_near^2 a pixel is lit by A_lit / S_0 < N_avg of them. Bounding D_near so that
   4 pi D_near^2 <= A_lit keeps N_avg lit VPLs per level. The paper's D_near = 0.2 R_scene holds
   wherever the light reaches at least 4 pi (0.2 R_scene)^2: every scene of the default run but
   big_floor, and sponza, sibenik, conference, highpoly_* (a point or directional light each).
-  On big_floor the 80 m floor inflates R_scene (28.7 m: D_near 5.7 m, S_0 3.2 m^2) while the
-  spot lights 3.5 m^2: the spot held 0 to 3 VPLs a frame (per-seed spread 110%); the rule gives
-  D_near 0.53 m, S_0 0.027 m^2, about 128 lit VPLs. `dnear_rule = scene` is the paper's
-  0.2 R_scene; `view` takes R = min(R_scene, median eye distance of the visible surface,
-  measured once in prepare): it also fixes big_floor's mean but shrinks D_near on every scene
-  with a large R_scene / view depth ratio (at 320 x 180, R = 3.56 of 6.47 m on rooms, 11.7 of
-  20.8 m on sponza, 14.8 of 26.7 m on sibenik: S_0 / 3.3, / 3.2, / 3.3, that many times the VPLs
-  to splat on scenes the paper's D_near already served). On big_floor (128 x 96, 8 seeds, image
-  mean over jittered `manylights` on `analysis.refined_scene`, per-seed spread, FLC stages):
-  lit 0.987, 6.6%, 37 ms; view 1.039, 4.4%, 26 ms; scene 0.793, 97% (seeds 1 and 5 see no
-  bounce at all), 11 ms.
+  `dnear_rule = scene` is the paper's 0.2 R_scene; `view` takes R = min(R_scene, median eye
+  distance of the visible surface, measured once in prepare), which also bounds big_floor's
+  D_near but shrinks it on every scene whose R_scene is large against the view depth.
 - Level set (`levels = -1`): N = min(ceil(log_mu (R_scene / D_0)^2), ceil(log_mu (A_lit /
   (32 N_avg S_0)))), at least 0: the fewest levels whose unbounded top level holds at most
-  32 N_avg lit VPLs, and no more than the reach needs (D_N >= R_scene). A level-k VPL
-  stands for S_k of surface: each level added divides the top level's VPLs by mu and makes them
-  mu times more powerful, and a frame whose light comes from a small lit patch then rests on a
-  handful of them (the paper's "spikes"; with the paper's N = 5 the top level held under one lit
-  VPL on cornell_spot). Every lit top-level VPL lights the whole screen, so the budget bounds
-  the fill cost. Measured at 128 x 96, 6 seeds, n_avg 128: cornell_spot's per-seed spread of the
-  image mean is 9% with N = 2 or 1 and 2% with N = 0, hidden_bounce 30% (N = 1) and 7% (N = 0),
-  rooms 19% and 6%, at a similar splat cost. At the defaults N = 0 on every scene of the default
-  run, sibenik and conference, 1 on sponza (A_lit = A_scene = 35 x 4 pi D_near^2). Unlit VPLs
-  splat nothing, so the budget counts lit ones (A_lit, as the D_near rule; A_lit = A_scene
-  unless every light is a spot): with A_scene, big_floor would get N = 3 and rest on 2 lit
-  top-level VPLs again.
+  32 N_avg lit VPLs, and no more than the reach needs (D_N >= R_scene). A level-k VPL stands
+  for S_k of surface: each level added divides the top level's VPLs by mu and makes them mu
+  times more powerful, and a frame whose light comes from a small lit patch then rests on a
+  handful of them (the paper's "spikes"). Every lit top-level VPL lights the whole screen, so
+  the budget bounds the fill cost; unlit VPLs splat nothing, so it counts lit ones (A_lit).
 - Tiling (`tiling_level = -1`): L = floor(log4(W H / (64 x 48))), at least 0 (at most 5): tiles
   of at least 64 x 48 px (3072 px). The paper's x64 tiling at 1280 x 720 (Table 1) has tiles of
   160 x 90 px on a GPU with fill rate to spare; a fifth of that keeps FLC near `direct`'s frame
-  time on a CPU rasteriser while a tile still resolves the low-frequency bounce (issue 10's
-  counter-example, x64 at 128 x 96, had 16 x 12 px tiles). 1 at 128 x 96, 2 at 320 x 180, 4 at
-  1280 x 720. Measured at 320 x 180 with n_avg 128: FLC's own stages cost 0.27 to 0.42 of
-  `direct`'s frame on sponza, conference and highpoly_1m with L = 2, 0.34 to 0.53 with L = 1 at
-  half the N_avg. The blur radius follows (`blur_radius = -1`: 2^L - 1, every tile phase
-  weighing the same).
-
-Measured at the defaults, one frame (issue 10; a shared 2-core llvmpipe machine under load 8 to
-11, so times are ratios within one run). `python -m studies.flc_study` prints every figure below
-(its docstring has the commands). 8 seeds (0..7); against jittered `manylights` (flc lobe, 4
-jitter frames at 320 x 180, 16 at 128 x 96; big_floor's on `analysis.refined_scene(scene, 0.5)`):
-image-mean ratio (relative spread std/mean across seeds), per-pixel relMSE mean (what a black
-image scores); against the Mitsuba unshadowed reference: relmse.indirect mean / max over seeds
-(`direct`'s):
-
-    320 x 180         ml ratio (spread)  relMSE vs ml (black)  Mitsuba mean / max (direct)
-    cornell_spot      1.018 (3.3%)       0.0021 (0.815)        0.052 / 0.068 (0.843)
-    hidden_bounce     1.063 (6.9%)       0.0094 (0.941)        0.080 / 0.140 (0.953)
-    big_floor         0.990 (6.5%)       0.0055 (0.136)        0.047 / 0.051 (0.196)
-    rooms/main        1.022 (6.6%)       0.0081 (0.622)        0.017 / 0.029 (0.615)
-    rooms/far         1.021 (5.7%)       0.0034 (0.576)        0.058 / 0.080 (0.586)
-    sphere_inside     0.995 (3.7%)       0.0013 (0.990)        0.008 / 0.010 (0.990)
-    lit_wall_corner   0.996 (5.0%)       0.139  (0.335)        0.023 / 0.037 (0.506)
-    cornell_box       1.061 (2.5%)       0.227  (0.387)        0.030 / 0.033 (0.755)
-    sibenik           -                  -                     0.044 / 0.065 (0.974)
-    conference        -                  -                     0.098 / 0.158 (0.904)
-    sponza            -                  -                     0.518 / 0.805 (0.762)
-    128 x 96: cornell_spot 1.010 (3.4%), hidden_bounce 1.050 (6.9%), big_floor 0.981 (6.5%),
-    rooms/main 1.025 (6.7%), rooms/far 1.019 (5.6%), sphere_inside 0.996 (3.7%), lit_wall_corner
-    0.991 (5.0%), cornell_box 0.997 (2.5%); Mitsuba relmse.indirect below `direct`'s on each, in
-    every seed (mean 0.007 .. 0.094 against 0.227 .. 0.990).
-
-lit_wall_corner's and cornell_box's relMSE against `manylights` is the reference's own 1/d^2
-singularity (4 jittered VPLs per triangle, no near-field bound) at the corners. On the real
-scenes `manylights` sums 10^5 triangles at every pixel: at 128 x 72 with one jitter frame
-(measured with `near_field=vpl_disc`, the former default), sibenik 0.959 (5.6%); sponza and
-conference 1.24 and 1.31 (1.34 and 1.39 with
-`near_field=paper_eps`, which is unbiased for it: 64 x 36, 2 reference seeds), so the
-one-frame `manylights` image itself is the low outlier there (a heavy-tailed 1/d^2 sum whose
-typical frame lies under its mean). Through Mitsuba instead (FLC / Mitsuba over the flc-lobe
-sum / the Lambertian sum, `manylights` with both lobes and the same VPLs: 0.94 on sponza, 1.10
-on conference): sponza 0.998 / 0.94 = 1.06, conference 1.037 / 1.10 = 0.94 (8 seeds, 320 x 180;
-per-seed spread 14% and 10%); sibenik's FLC / Mitsuba is 1.005 (5.6%).
-Sponza is the hard scene: its sun carries 95% of the bounce from a small sunlit share of the
-surface, so one frame's bounce rests on a few sunlit VPLs. relmse.indirect over 16 seeds: mean
-0.50, median 0.41, max 1.15 (`direct`: 0.76; the table's 8 seeds: 0.52). The worst frames are
-Alg. 1's own variance, not a defect: on the worst seed found (seed 8 at n_avg 256, relmse 2.45),
-one sunlit ledge triangle (0.41 m^2, radiosity 5.3, at the ground-floor arcade) drawn into the top
-level weighs S_1 = 3.4 m^2, 8x its area, and carries 41% of the light of the pixels more than 4x
-too bright (found by zeroing the albedo of halves of the triangles, same seed).
-The figures above were measured before the shared shadow test's offsets were halved (bench/gl/
-shaders/shadow.glsl: they eroded the sun's shadow lines, so some VPLs under sponza's roof were
-sunlit). After it, same commands: sponza relmse.indirect 0.42 mean / 0.37 median / 0.61 max over
-16 seeds (8 seeds: 0.45; image mean 0.906 of Mitsuba's, 0.96 through the lobe factor), conference
-0.093 (0.969), sibenik 0.045 (0.997), 8 seeds.
-
-N_avg sweep (`python -m studies.flc_study --n-avg 64,128,256,512,1024 --seeds 4 --jitter-frames 4`,
-320 x 180), Mitsuba relmse.indirect mean over 4 seeds at N_avg 64 .. 1024 and the log-log slope
-of FLC's own time against N_avg: cornell_spot 0.055 0.052 0.052 0.053 0.049 (slope 0.60),
-hidden_bounce 0.121 0.089 0.044 0.040 0.037 (0.44), big_floor 0.046 0.047 0.046 0.045 0.046
-(0.63), rooms/main 0.023 0.015 0.018 0.014 0.014 (0.63), rooms/far 0.050 0.053 0.060 0.063
-0.059 (0.63), sphere_inside 0.0084 0.0076 0.0066 0.0068 0.0069 (0.77), lit_wall_corner 0.024
-0.020 0.017 0.016 0.015 (0.54), cornell_box 0.039 0.030 0.028 0.024 0.025 (0.83), sibenik 0.058
-0.045 0.034 0.032 0.028 (0.75), conference 0.364 0.107 0.088 0.055 0.062 (0.77), sponza 0.723
-0.490 0.360 0.319 0.218 (0.72). On the real scenes the error falls with N_avg (conference's last
-step is within its seed spread); on the small scenes it stops falling at a bias floor (the flc
-lobe, eq. 6, and no indirect shadows: rooms/far looks through a door), not at noise. Against the
-sum FLC estimates (jittered `manylights` with the flc lobe, 64 jitter frames, 8 seeds, 128 x 96,
-`--res 128x96 --seeds 8 --jitter-frames 64`), per-pixel relMSE: cornell_spot 0.0081 0.0018
-0.0005 0.0008 0.0001, hidden_bounce 0.022 0.0081 0.0010 0.0011 0.0016, big_floor 0.0042 0.0039
-0.0035 0.0035 0.0033, rooms/main 0.015 0.0081 0.0020 0.0029 0.0015, rooms/far 0.014 0.0036
-0.0005 0.0012 0.0005, sphere_inside 0.0009 0.0013 0.0003 0.0000 0.0002: it falls by 4 to 30x
-from 64 to 1024, with a step up at 512 where a scene's triangles cross the divergent threshold
-(rooms: 0 -> 2596 divergent triangles, hidden_bounce 0 -> 4354; same without tiling and blur).
-It is single-frame variance, not bias: 64 progressive sub-frames are as close to `manylights` at
-512 as at 256 (rooms, `near_field=vpl_disc`, no tiling or blur: 0.00079 and 0.00088), and the image mean stays unbiased (hidden_bounce 0.999
-of `manylights` at n_avg 512 and 1024 with every triangle divergent). A triangle just over
-S_bar_N is cut by the smallest uniform tessellation level whose pieces are regular, into pieces
-far smaller than S_0, each kept with a low probability, so its variance barely falls where the
-regular triangles' halves. The
-time slope is under 1 because the selection, deinterleave and blur passes are fixed costs.
-`gibench sweep --methods flc` renders the same n_avg values (one seed per point) into the
-report's time-vs-error plot.
-
-Frame time at 320 x 180 over `direct`'s (`gibench run --scenes highpoly_1m,sponza,conference
---methods direct,flc,dss --res 320x180 --defaults-only --no-reference --force`, idle machine,
-shared passes measured once per view and added to every row): highpoly_1m 1.18, sponza 1.39,
-conference 1.35 (FLC's own stages regular / divergent / upscale_blur: 29 / 29 / 11, 9 / 14 /
-10, 21 / 30 / 12 ms; the shared GBuffer and shadow maps 396, 83, 155 ms); `dss` / `flc` 48,
-7.3, 12.8 (measured with `near_field=vpl_disc`; the disc element adds one multiply-add per splat
-fragment: frame / `direct` 1.20, 1.14, 1.21 against 1.18, 1.17, 1.17 for `vpl_disc` in one
-interleaved run of `harness.run_method`, 3 x 4 frames each, machine under load).
-
-| parameter             | default    | range        | meaning                                                     |
-|-----------------------|------------|--------------|-------------------------------------------------------------|
-| n_avg                 | 128        | 8 .. 4096    | N_avg of eq. 1: VPLs reaching a pixel per level (quality)   |
-| mu                    | 4.0        | 1.05 .. 16   | level size ratio S_k = S_0 mu^k (paper: 1.4 .. 5)           |
-| levels                | -1         | -1 .. 15     | N: levels 0..N; -1: the level-set rule above                |
-| reach                 | eq1_intent | eq1_intent, eq18_printed | D_k = D_near mu^(k/2), or sqrt(S_k) as printed  |
-| dnear_factor          | 0.2        | 1e-3 .. 10   | D_near / R_scene (eq. 1), bounded by the D_near rule        |
-| dnear_rule            | lit        | lit, view, scene | D_near: min(dnear_factor R_scene, sqrt(A_lit / 4 pi)); dnear_factor min(R_scene, median view distance); dnear_factor R_scene (paper) |
-| eps_rel               | 1e-4       | 1e-7 .. 1    | eps of d_i = max(eps, |x - y|), relative to R_scene         |
-| near_field            | disc_element | disc_element, vpl_disc, paper_eps | d_i^2 = \|x - y\|^2 + S_k / pi (a disc element's form factor), max(sqrt(S_k / pi), \|x - y\|)^2, or eq. 5's max(eps, \|x - y\|)^2 |
-| regular_selection     | compute    | compute, single_draw | compute pass selects the drawn triangles (same image), or one draw of all |
-| tiling_level          | -1         | -1 .. 5      | L: 4^L interleaved tiles; -1: the tiling rule above         |
-| blur_radius           | -1         | -1 .. 32     | tent blur radius r in pixels; -1: 2^L - 1; 0: off           |
-| blur_depth_threshold  | 0.05       | 0 .. 10      | tangent-plane distance / camera distance for a blur neighbour |
-| blur_normal_threshold | 0.9        | -1 .. 1      | min cosine between normals for a blur neighbour             |
-| progressive_frames    | 1          | 1 .. 4096    | F sub-frames averaged in one render (jittered VPLs)         |
-| jitter                | true       |              | VPLs jittered over their (sub-)triangle (false: centroids)  |
-| last_level_unbounded  | true       |              | f^N = 1 beyond D_N: unbiased (false: far field cut)         |
-| divergent_pass        | true       |              | tessellate divergent triangles (off: they are dropped)      |
+  time on a CPU rasteriser while a tile still resolves the low-frequency bounce. 1 at 128 x 96,
+  2 at 320 x 180, 4 at 1280 x 720. The blur radius follows (`blur_radius = -1`: 2^L - 1, every
+  tile phase weighing the same).
 
 Quality ladder (`ladder`, fast -> accurate): n_avg 32, 64, 128 (default), 512. N_avg is the
 paper's one quality knob (Fig. 10: the VPLs reaching a pixel per level, time in proportion);
-the level set, D_near, tiling and blur follow their rules at every rung. The default 128 lies in
-the paper's range (64 .. 1024) and keeps the frame within 1.5x `direct`'s on the timing scenes
-at 320 x 180 (figures below); 512 buys a lower error (the n_avg sweep below) for 2.6 to 3.2x
-the frame time on cornell_spot and sphere_inside; 32 and 64 are the cheap end.
+the level set, D_near, tiling and blur follow their rules at every rung.
+
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter             | default      | range                             | meaning |
+|-----------------------|--------------|-----------------------------------|---|
+| n_avg                 | 128          | 8 .. 4096                         | N_avg of eq. 1: about how many VPLs reach a pixel per level (quality knob; sweep 64, 128, 256, 512, 1024) |
+| mu                    | 4.0          | 1.05 .. 16.0                      | level size ratio mu of S_k = S_0 mu^k (paper: 1.4 .. 5) |
+| levels                | -1           | -1 .. 15                          | N: levels 0..N (-1: the level-set rule, the fewest levels whose top level holds at most 32 N_avg lit VPLs, no more than D_N >= R_scene needs) |
+| reach                 | eq1_intent   | eq1_intent, eq18_printed          | influence distances D_k: eq1_intent D_near mu^(k/2) (N_avg VPLs per level), eq18_printed sqrt(S_k) (the printed eq. 18) |
+| dnear_factor          | 0.2          | 0.001 .. 10.0                     | D_near / R_scene in eq. 1 (bounded by dnear_rule) |
+| dnear_rule            | lit          | lit, view, scene                  | D_near: lit = min(dnear_factor R_scene, sqrt(A_lit / 4 pi)) (N_avg lit VPLs per level), view = dnear_factor min(R_scene, median view distance), scene = dnear_factor R_scene (the paper) |
+| regular_selection     | compute      | compute, single_draw              | regular pass: compute = a compute pass selects the triangles Alg. 1 keeps (and the divergent ones) and the draw carries only those (same image); single_draw = the paper's one draw of the whole scene through the geometry shader |
+| near_field            | disc_element | paper_eps, vpl_disc, disc_element | d_i^2 of eq. 5 for a level-k VPL at distance d from the receiver, r_k = sqrt(S_k / pi) the radius of the disc of area S_k it stands for: d^2 + r_k^2, the disc element's form factor (disc_element); max(r_k, d)^2 (vpl_disc); max(eps, d)^2 only (paper_eps, eq. 5 as printed); d_i >= eps_rel R_scene in all three |
+| eps_rel               | 0.0001       | 1e-07 .. 1.0                      | eps of d_i = max(eps, d) (eq. 5, d the VPL-receiver distance), relative to the scene radius |
+| tiling_level          | -1           | -1 .. 5                           | L: the viewport is split into 4^L interleaved tiles (-1: from the resolution, tiles of at least 64 x 48 px each) |
+| blur_radius           | -1           | -1 .. 32                          | tent blur radius in pixels (-1: 2^L - 1, i.e. 0 when L = 0; 0: no blur) |
+| blur_depth_threshold  | 0.05         | 0.0 .. 10.0                       | max tangent-plane distance of a blur neighbour / camera distance |
+| blur_normal_threshold | 0.9          | -1.0 .. 1.0                       | min cosine between the normals of blur neighbours |
+| progressive_frames    | 1            | 1 .. 4096                         | sub-frames averaged in one render (new u_rand, jittered VPLs) |
+| jitter                | true         | bool                              | VPL uniformly jittered over its (sub-)triangle in every (sub-)frame (false: at the centroid when progressive_frames = 1, the paper's real-time mode) |
+| last_level_unbounded  | true         | bool                              | f^N = 1 beyond D_N: unbiased (false: every f^k is 0 beyond D_N, far field cut) |
+| divergent_pass        | true         | bool                              | tessellate divergent triangles (false: drop them) |
+<!-- end of parameters -->
+
+Example (the defaults, then the ladder's ends):
+
+    gibench run --scenes cornell_spot --methods flc --res 128x96 --defaults-only
+    gibench run --scenes cornell_spot --methods flc --res 128x96 --param flc.n_avg=32,512
 
 Stages: `regular`, `divergent`, `upscale_blur` (after the shared `gbuffer_shadow` and
-`direct_light`); the paper's "indirect" total is their sum. Each row records `extra.S0_m2`,
-`D_near_m`, `lit_area_m2`, `S_bar_N_m2`, `D_N_m`, `levels`, `tiling_level`, `blur_radius`,
-`divergent_triangles`, `divergent_patch_vertices` (the buffer's size: the sub-patches a light
-can reach are drawn).
+`direct_light`); the paper's "indirect" total is their sum. Needs: gbuffer, shadow_map, direct.
+Each row records `extra.S0_m2`, `D_near_m`, `lit_area_m2`, `S_bar_N_m2`, `D_N_m`, `levels`,
+`tiling_level`, `blur_radius`, `divergent_triangles`, `divergent_patch_vertices` (the buffer's
+size: the sub-patches a light can reach are drawn).
+
+Measurements: NOTES.md beside this file holds the figures behind these rules and defaults (the
+single-frame study against jittered `manylights` and Mitsuba, the N_avg sweep, frame times,
+each rule's comparison); `python -m studies.flc_study` reproduces them.
 
 Stress limit params:progressive_frames=4096: 4096 sub-frames averaged in one render by design (the converged estimate); minutes per frame on llvmpipe, over the stress suite's timeout.
 Stress limit params:dnear_factor=0.001: D_near of 1e-3 R_scene makes S_0 ~1e6 times smaller, so nearly every triangle is divergent and tessellated into millions of VPLs (the paper's D_near is 0.2 R_scene); the row exceeds the stress suite's timeout.
@@ -391,7 +287,8 @@ class ForwardLightCuts(MethodBase):
         "n_avg": Param(128, "N_avg of eq. 1: about how many VPLs reach a pixel per level", 8, 4096,
                        quality=True, sweep=(64, 128, 256, 512, 1024)),
         "mu": Param(4.0, "level size ratio mu of S_k = S_0 mu^k (paper: 1.4 .. 5)", 1.05, 16.0),
-        "levels": Param(-1, "N: levels 0..N (-1: the smallest N with D_N >= R_scene)", -1, 15),
+        "levels": Param(-1, "N: levels 0..N (-1: the level-set rule, the fewest levels whose top level holds at most "
+                       "32 N_avg lit VPLs, no more than D_N >= R_scene needs)", -1, 15),
         "reach": Param("eq1_intent", "influence distances D_k: eq1_intent D_near mu^(k/2) (N_avg VPLs per level), "
                        "eq18_printed sqrt(S_k) (the printed eq. 18)", choices=REACHES),
         "dnear_factor": Param(0.2, "D_near / R_scene in eq. 1 (bounded by dnear_rule)", 1e-3, 10.0),
@@ -402,11 +299,13 @@ class ForwardLightCuts(MethodBase):
                                    "(and the divergent ones) and the draw carries only those (same image); "
                                    "single_draw = the paper's one draw of the whole scene through the geometry shader",
                                    choices=REGULAR_SELECTIONS),
-        "near_field": Param("disc_element", "d_i^2 of eq. 5 for a level-k VPL, r_k = sqrt(S_k / pi) the radius of the "
-                            "disc of area S_k it stands for: |x - y|^2 + r_k^2, the disc element's form factor "
-                            "(disc_element); max(r_k, |x - y|)^2 (vpl_disc); max(eps, |x - y|)^2 only (paper_eps); "
-                            "d_i >= eps_rel R_scene in all three", choices=NEAR_FIELDS),
-        "eps_rel": Param(1e-4, "eps of d_i = max(eps, |x - y|), relative to the scene radius", 1e-7, 1.0),
+        "near_field": Param("disc_element", "d_i^2 of eq. 5 for a level-k VPL at distance d from the receiver, "
+                            "r_k = sqrt(S_k / pi) the radius of the disc of area S_k it stands for: d^2 + r_k^2, "
+                            "the disc element's form factor (disc_element); max(r_k, d)^2 (vpl_disc); max(eps, d)^2 "
+                            "only (paper_eps, eq. 5 as printed); d_i >= eps_rel R_scene in all three",
+                            choices=NEAR_FIELDS),
+        "eps_rel": Param(1e-4, "eps of d_i = max(eps, d) (eq. 5, d the VPL-receiver distance), relative to the "
+                         "scene radius", 1e-7, 1.0),
         "tiling_level": Param(-1, "L: the viewport is split into 4^L interleaved tiles (-1: from the resolution, "
                               "tiles of at least 64 x 48 px each)", -1, 5),
         "blur_radius": Param(-1, "tent blur radius in pixels (-1: 2^L - 1, i.e. 0 when L = 0; 0: no blur)", -1, 32),

@@ -4,9 +4,9 @@ with a low-resolution hemicube shadow map.
 
 Per frame:
 
-1. `vpl_sample`: the same N VPLs as `ir_unshadowed` (same code, same random numbers: for a
-   given seed and frame both methods use identical VPLs), importance sampled by flux
-   luminance from the RSM with an exact integer CDF (see methods/ir_unshadowed).
+1. `vpl_sample`: the same N VPLs as `ir_unshadowed` (same code, `bench/gl/vpl.py`, same random
+   numbers: for a given seed and frame both methods use identical VPLs), importance sampled by
+   flux luminance from the RSM with an exact integer CDF (see `ir_unshadowed`'s manual).
 2. `vpl_shadow_maps`: every VPL's hemicube (5 faces of a cube aligned with the VPL normal:
    front and four sides; the VPL emits nothing behind its plane) in one instanced draw of the
    scene, N x 5 instances into one R32F atlas of `shadow_resolution`^2 tiles. The vertex
@@ -23,40 +23,47 @@ The gather is the unshadowed one compiled with the visibility test, term for ter
 same seed `ir_shadowed` <= `ir_unshadowed` at every pixel, and equal where nothing occludes
 any VPL (an open box, the inside of a sphere). Visibility is resolved at hemicube resolution:
 receivers within about a texel of a concave corner seen at a grazing angle from a VPL can lose
-that VPL (a few pixels per thousand of an open box), and the normal offset lets light past an
-occluder's edge in a band about `normal_offset` texels wide (it shrinks with the resolution).
-The hemicube pass draws the scene N x 5 times: its cost is proportional to N x triangles.
+that VPL, and the normal offset lets light past an occluder's edge in a band about
+`normal_offset` texels wide (it shrinks with the resolution). The hemicube pass draws the scene
+N x 5 times: its cost is proportional to N x triangles.
 
 Leaks at the seams of thin walls: a receiver just past a zero-thickness wall (the rooms scene's
 walls meet floor and ceiling edge to edge) is within one texel footprint of the wall in the
 VPL's hemicube and passes the test, so bands along those seams and door jambs receive light
-the wall blocks. It is the error of this method where occlusion decides the bounce: rooms/far
-(a room lit only through a door, whose visible bounce is 1/8 of the unshadowed one) scores
-image mean 1.17 of Mitsuba's and relMSE 11.8 / 5.0 / 2.6 at shadow_resolution 32 / 64 / 128
-(320 x 180, 3 seeds; mean 1.06 at 256, 160 x 120, 4 seeds), rooms/main 5.5 / 3.0 / 1.6, while cornell_box,
-hidden_bounce and cornell_spot do not change; the frame costs 1.2-1.5x more at 128 than at 64.
-The default stays at 64 (the error per millisecond is better at 64 wherever no thin wall decides
-the bounce); `--param ir_shadowed.shadow_resolution=128` halves the seam error. Measured with
-`gibench run --scenes rooms,cornell_box,hidden_bounce,cornell_spot --methods ir_shadowed
---param ir_shadowed.shadow_resolution=32,64,128 --seed S` for S = 0, 1, 2 (mean over seeds).
+the wall blocks. It is the error of this method where occlusion decides the bounce (rooms/far,
+a room lit only through a door); it falls as `shadow_resolution` grows, for a frame that costs
+more. The default stays at 64 (the error per millisecond is better at 64 wherever no thin wall
+decides the bounce); `--param ir_shadowed.shadow_resolution=128` lowers the seam error (NOTES.md
+has the measurements).
 
-| parameter          | default | range        | meaning                                                  |
-|--------------------|---------|--------------|----------------------------------------------------------|
-| vpl_count          | 256     | 1 .. 8192    | VPLs per frame (quality; sweep 16, 64, 256, 1024)        |
-| shadow_resolution  | 64      | 8 .. 512     | hemicube face resolution (quality; sweep 32, 64, 128)    |
-| normal_offset      | 0.5     | 0 .. 16      | receiver offset along its normal, in texel footprints    |
-| clamp_distance_rel | 1e-4    | 1e-7 .. 1    | eps of max(eps, d), relative to the scene radius         |
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter          | default  | range            | meaning |
+|--------------------|----------|------------------|---|
+| vpl_count          | 256      | 1 .. 8192        | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
+| shadow_resolution  | 64       | 8 .. 512         | hemicube face resolution of each VPL's shadow map (texels) (quality knob; sweep 32, 64, 128) |
+| normal_offset      | 0.5      | 0.0 .. 16.0      | receiver offset along its geometric normal for the VPL shadow test, in hemicube texel footprints at the receiver |
+| clamp_distance_rel | 0.0001   | 1e-07 .. 1.0     | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| max_triangle_draws | 10000000 | 1 .. 10000000000 | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
+<!-- end of parameters -->
 
 The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels; a combination larger than
 the GL's maximum texture size is refused with an error naming both parameters.
-Stages: `vpl_sample`, `vpl_shadow_maps`, `gather` (after the shared `gbuffer_shadow`,
-`direct_light`, `rsm`).
 
 Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024 (VAL's VPL count); one shadow map
 per VPL makes the cost linear in the count, so 4096 (seconds per frame here) is left to `--param`.
 Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_count x triangles
-triangle draws (sponza at 64 VPLs: 4.2M, ~2 s per frame on llvmpipe); a row above
-`max_triangle_draws` (default 1e7) is skipped with that figure rather than run for minutes.
+triangle draws; a row above `max_triangle_draws` (default 1e7) is skipped with that figure
+rather than run for minutes.
+
+Example:
+
+    gibench run --scenes rooms --methods ir_shadowed --res 160x120 --defaults-only
+    gibench run --scenes rooms --methods ir_shadowed --param ir_shadowed.shadow_resolution=64,128
+
+Stages: `vpl_sample`, `vpl_shadow_maps`, `gather` (after the shared `gbuffer_shadow`,
+`direct_light`, `rsm`). Needs: gbuffer, shadow_map, direct, rsm.
 
 Stress limit params:shadow_resolution=512: 256 VPLs x 5 hemicube faces of 512^2 need an 18432^2 atlas, larger than GL_MAX_TEXTURE_SIZE (16384 on llvmpipe); prepare() refuses it with one line naming both parameters.
 """

@@ -23,45 +23,43 @@ Every frame this method estimates that sum with N VPLs, without bias:
    come from `frame.random_u32` (same seed and frame -> same VPLs).
 2. `gather` (full screen): every pixel sums the N VPLs with the formula above, no visibility.
 
+The sampling and the gather live in `bench/gl/vpl.py` and `bench/gl/shaders/vpl_*.glsl`: the
+same VPLs and transfer term serve `ir_shadowed`, `val_clustered` and `visibility_gates`.
+
 The RSM samples the surfaces the light sees, i.e. exactly the shadowed-lit surfaces, so with
 many VPLs the result converges to `manylights` (emission lambert) up to the RSM's
 discretisation (texel-centre positions, 128^2 texels per light layer). The clamp eps tames the
 1/d^2 singularity of VPLs close to the receiver (bright splotches at low N) at the price of a
-bias near corners; the default is tiny, i.e. almost unbiased and noisy there. What that costs
-in relMSE (a few VPLs within centimetres of a receiver carry most of it), 320 x 180, 3 seeds,
-against Mitsuba's unshadowed bounce (image mean over Mitsuba's in brackets):
+bias near corners; the default is tiny, i.e. almost unbiased and noisy there: a few VPLs within
+centimetres of a receiver carry most of the relMSE on the real scenes. `near_field =
+disc_element` replaces the clamp by the form factor of a disc of the area A_k the VPL stands for
+(its RSM texel's footprint on the surface, rsm.glsl's flux.a, times Q / (N q_i)): d^2 =
+|y_k - x|^2 + A_k / pi (Bunnell 2005, as FLC's disc element). It takes the spikes out, but
+each VPL stands for 1/N of the lit surface, and the disc's near field darkens the bounce. The
+same VPLs and term make the spikes of `ir_shadowed`, `val_clustered` and `visibility_gates`;
+which near field the VPL family should use by default is open, the default stays the
+almost-unbiased clamp (NOTES.md has the measurements).
 
-| scene       | clamp 1e-4 (default) | clamp_distance_rel 3e-2 | near_field disc_element |
-|-------------|----------------------|-------------------------|-------------------------|
-| conference  | 1.28 (1.021)         | 0.096 (0.992)           | 0.029 (0.893)           |
-| sponza      | 2.60 (1.043)         | 1.16 (0.980)            | 0.57 (0.840)            |
-| sibenik     | 0.54 (0.993)         | 0.054 (0.977)           | 0.032 (0.891)           |
-| cornell_box | 0.665 (1.007)        | 0.030 (0.999)           | 0.018 (0.966)           |
-| rooms       | 0.053 (0.955)        | 0.033 (0.953)           | 0.017 (0.921)           |
+Parameters:
 
-(the other procedural scenes do not change; clamp 1e-1 takes 70% of big_floor's bounce, a small
-lit disc next to the blob). `near_field = disc_element` replaces the clamp by the form factor
-of a disc of the area A_k the VPL stands for (its RSM texel's footprint on the surface, rsm.glsl's
-flux.a, times Q / (N q_i)): d^2 = |y_k - x|^2 + A_k / pi (Bunnell 2005, as FLC's disc element).
-It takes the spikes out but, at 256 VPLs, each VPL stands for 1/256 of the lit surface, and the
-disc's near field darkens the real scenes to 0.84-0.89 of Mitsuba's bounce (0.977-0.992 with the
-clamp at 3e-2; the default's 0.993-1.043 carries the spikes).
-The same VPLs and term make the spikes of `ir_shadowed`, `val_clustered` and
-`visibility_gates` (val_clustered on conference, seed 0: ten pixels hold 99% of its relMSE of
-241 against the visible bounce); which near field the VPL family should use by default is
-open, the default stays the almost-unbiased clamp. Measured with `gibench run --scenes ...
---methods ir_unshadowed --param ir_unshadowed.near_field=clamp,disc_element --seed S`.
-
-| parameter          | default | range        | meaning                                                 |
-|--------------------|---------|--------------|---------------------------------------------------------|
-| vpl_count          | 256     | 1 .. 65536   | VPLs per frame (quality; sweep 16, 64, 256, 1024, 4096) |
-| clamp_distance_rel | 1e-4    | 1e-7 .. 1    | eps of max(eps, d), relative to the scene radius        |
-| near_field         | clamp   | clamp, disc_element | d^2: max(eps, d)^2, or max(eps^2, d^2 + A_k / pi) |
-
-Stages: `vpl_sample`, `gather` (after the shared `gbuffer_shadow`, `direct_light`, `rsm`).
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter          | default | range               | meaning |
+|--------------------|---------|---------------------|---|
+| vpl_count          | 256     | 1 .. 65536          | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024, 4096) |
+| clamp_distance_rel | 0.0001  | 1e-07 .. 1.0        | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| near_field         | clamp   | disc_element, clamp | the squared distance d^2 of a VPL's transfer, d the VPL-receiver distance: disc_element d^2 + A / pi (at least eps^2), A the area the VPL stands for (its RSM texel's footprint / (N pdf)); clamp max(eps, d)^2 only |
+<!-- end of parameters -->
 
 Quality ladder (`gibench run`): vpl_count 16, 64, 256 (default), 1024: the gather costs VPLs x
 pixels and the variance falls as 1 / VPLs, so the count is the knob a user turns.
+
+Example:
+
+    gibench run --scenes cornell_box --methods ir_unshadowed --res 128x96 --defaults-only
+    gibench run --scenes cornell_box --methods ir_unshadowed --param ir_unshadowed.vpl_count=64,1024
+
+Stages: `vpl_sample` (CDF + sampling, 4 compute dispatches), `gather` (after the shared
+`gbuffer_shadow`, `direct_light`, `rsm`). Needs: gbuffer, shadow_map, direct, rsm.
 """
 from __future__ import annotations
 
@@ -69,8 +67,9 @@ from bench.protocol.method import FrameOutput, MethodBase, Param
 
 from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC, RsmVplSampler, VplGather
 
-NEAR_FIELD_DOC = ("disc_element: d^2 = |x - y|^2 + A / pi, A the area a VPL stands for (its RSM texel's footprint / "
-                  "(N pdf)); clamp: max(eps, |x - y|)^2 only")
+NEAR_FIELD_DOC = ("the squared distance d^2 of a VPL's transfer, d the VPL-receiver distance: disc_element "
+                  "d^2 + A / pi (at least eps^2), A the area the VPL stands for (its RSM texel's footprint / "
+                  "(N pdf)); clamp max(eps, d)^2 only")
 NEAR_FIELD_CHOICES = ("disc_element", "clamp")
 
 

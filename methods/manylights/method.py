@@ -9,12 +9,12 @@ with no indirect visibility. It computes eq. 4's sum exactly, which is exact *fo
 (one VPL at each triangle's centroid), not the continuous integral Mitsuba's unshadowed
 reference computes: the centroid rule's discretisation error is large on big triangles. On
 big_floor (floor and wall of 2 huge triangles, a spot lighting a disc no centroid lies in) the
-centroid sum is 0; issue #11 reported about half the reference on a user's flat-shaded two-room
-scene of a few large triangles (a similar scene built here gave 0.94). With `jitter_frames` J > 1 each frame puts every VPL at an independent uniform
-point of its triangle and the J frames are averaged inside one render: an unbiased estimate of
-the continuous integral, converging to it as J grows (noise ~ 1/sqrt(J), large where a small
-lit region lies on a big triangle). Compare both with the Mitsuba reference before trusting
-either on a scene of large triangles.
+centroid sum is 0 (`test_centroid_vpls_miss_a_small_spot_and_jitter_converges`; NOTES.md has
+issue #11's user scene). With `jitter_frames` J > 1 each frame puts every VPL at an independent
+uniform point of its triangle and the J frames are averaged inside one render: an unbiased
+estimate of the continuous integral, converging to it as J grows (noise ~ 1/sqrt(J), large
+where a small lit region lies on a big triangle). Compare both with the Mitsuba reference
+before trusting either on a scene of large triangles.
 
 Emitter convention (Mitsuba's `twosided` diffuse with shading normals): E(y_t) takes its
 cosine against the shading normal at y_t (the vertex normals interpolated there, normalised),
@@ -32,15 +32,28 @@ The VPL's emission model is a parameter:
 
 Both conserve energy: the cosine-weighted integral of L_t over the hemisphere is rho_t E.
 Surfaces are two-sided (as Mitsuba's `twosided` diffuse): a VPL emits on each side the light
-that side receives. The cost is O(pixels x triangles x J): a yardstick baseline, slow.
+that side receives. The cost is O(pixels x triangles x J): a yardstick baseline, slow. The
+gather is split into draws of 16k VPLs (llvmpipe's per-invocation loop cap).
 
-| parameter      | default | range        | meaning                                          |
-|----------------|---------|--------------|--------------------------------------------------|
-| emission       | lambert | lambert, flc | VPL emission lobe                                |
-| jitter_frames  | 1       | 1 .. 4096    | VPL position samples per triangle (1: centroid;  |
-|                |         |              | > 1: converges to the continuous integral)       |
-| eps_rel        | 1e-4    | 1e-7 .. 1    | distance clamp eps, relative to the scene radius |
-| max_triangles  | 2e6     | 1 .. 1e8     | skip larger scenes (the cost is pixels x T)      |
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter     | default | range          | meaning |
+|---------------|---------|----------------|---|
+| emission      | lambert | lambert, flc   | VPL emission lobe: lambert rho E / pi (Mitsuba's), flc rho E 3/(2 pi) <n_t, w>+ (FLC eq. 6) |
+| jitter_frames | 1       | 1 .. 4096      | VPL position samples per triangle (1: centroid, eq. 4's VPL model; > 1: uniform jitter, converges to the continuous integral) (quality knob; sweep 1, 4, 16, 64) |
+| eps_rel       | 0.0001  | 1e-07 .. 1.0   | distance clamp eps relative to the scene radius |
+| max_triangles | 2000000 | 1 .. 100000000 | skip (recorded as skipped) a scene with more triangles: the cost is pixels x triangles |
+<!-- end of parameters -->
+
+Example (the centroid sum, then the jittered one, unbiased for Mitsuba's reference):
+
+    gibench run --scenes big_floor --methods manylights --res 64x48 --defaults-only
+    gibench run --scenes big_floor --methods manylights --res 64x48 --param manylights.jitter_frames=16
+
+Stages: `vpl_irradiance` (compute: every triangle's VPL and its shadowed radiosity), `gather`
+(full screen, every VPL at every pixel). Needs: gbuffer, shadow_map, direct. NOTES.md holds the
+measurements.
 
 Stress limit params:jitter_frames=4096: 4096 jittered VPL sets summed in one frame by design (the converged reference of the jittered sum), 4096 x the default frame's work: minutes per frame on llvmpipe, over the stress case timeout (hidden_bounce 64x48: over 300 s; big_floor, sphere_inside: over 120 s).
 Stress limit coplanar: a second triangle coincident with part of another is a second emitter in the sum over triangles (eq. 4 of the FLC paper, this method's definition) while Mitsuba's rays see one surface: that area emits twice (cornell_box 64x48: mean +7.8%, indirect +20%).
@@ -81,12 +94,14 @@ class ManyLights(MethodBase):
     stages = ("vpl_irradiance", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
     params = {
-        "emission": Param("lambert", "VPL emission lobe", choices=("lambert", "flc")),
+        "emission": Param("lambert", "VPL emission lobe: lambert rho E / pi (Mitsuba's), flc rho E 3/(2 pi) <n_t, w>+ "
+                                     "(FLC eq. 6)", choices=("lambert", "flc")),
         "jitter_frames": Param(1, "VPL position samples per triangle (1: centroid, eq. 4's VPL model; "
                                "> 1: uniform jitter, converges to the continuous integral)", 1, 4096,
                                quality=True, sweep=(1, 4, 16, 64)),
         "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
-        "max_triangles": Param(2_000_000, "refuse scenes with more triangles", 1, 100_000_000),
+        "max_triangles": Param(2_000_000, "skip (recorded as skipped) a scene with more triangles: the cost is "
+                                          "pixels x triangles", 1, 100_000_000),
     }
 
     def prepare(self, gpu, scene, facts, params, view) -> None:

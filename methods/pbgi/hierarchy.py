@@ -30,7 +30,8 @@ Node aggregates are built on the GL every frame (emitter_hierarchy.glsl), level 
 the leaves up (a parent's lowest level is above each child's); a node reads its children as
 j = i + 1, skip[j], ... while j < skip[i]. Receivers are grouped in tiles of at most
 `tile_texels` consecutive leaves (receiver_tiles): sibling cubes, so a tile is compact in space
-whatever chart its texels come from.
+whatever chart its texels come from; `tile_records` gives each tile's bounding sphere, mean
+normal and flat flag (the nodes' flatness tolerances, HIERARCHY_DEFINES) for the gather.
 """
 from __future__ import annotations
 
@@ -39,6 +40,11 @@ from dataclasses import dataclass
 import numpy as np
 
 MORTON_BITS = 21   # per axis: 63 bits of code
+HIERARCHY_DEFINES = {
+    "FLAT_COSINE_TOLERANCE": 1e-6,    # a node is flat when every leaf normal is within this (1 - cos) of its normal
+    "FLAT_DISTANCE_TOLERANCE": 1e-5,  # ... and every child centre within this many node radii of its plane
+    "PLANE_TOLERANCE": 1e-4,          # a receiver within this many node radii of a flat node's plane gets nothing from it
+}
 
 
 def morton3(q: np.ndarray) -> np.ndarray:
@@ -167,3 +173,33 @@ def build_tree(position: np.ndarray, normal: np.ndarray) -> EmitterTree:
     level_offsets = np.searchsorted(level[level_nodes], np.arange(int(level.max()) + 2), side="left")
     return EmitterTree(leaf_order=order, lo=lo, hi=hi, level=level, skip=skip, leaf_start=leaf_start,
                        level_nodes=level_nodes, level_offsets=level_offsets.astype(np.int64))
+
+
+def tile_records(tiles, position, normal, area, texel_m: float) -> np.ndarray:
+    """ReceiverTile records (gather_hierarchy.glsl) of the tiles (first leaf, count): bounding
+    sphere of the texels (area-weighted centre; each texel's radius as its leaf node's), mean
+    normal and flat flag (every texel with that normal, on its plane: the tolerances of the
+    emitter nodes), then the leaf range. Texel arrays in leaf order."""
+    first, count = tiles[:, 0], tiles[:, 1]
+    owner = np.repeat(np.arange(len(tiles)), count)
+    a = area[:, None]
+    centre = np.zeros((len(tiles), 3))
+    np.add.at(centre, owner, a * position)
+    centre /= np.bincount(owner, weights=area)[:, None]
+    mean_n = np.zeros((len(tiles), 3))
+    np.add.at(mean_n, owner, a * normal)
+    mean_n /= np.maximum(np.linalg.norm(mean_n, axis=1), 1e-30)[:, None]
+    axis_cos = np.maximum(np.abs(normal).max(axis=1), 1.0 / np.sqrt(3.0))
+    reach = np.linalg.norm(position - centre[owner], axis=1) + np.sqrt(0.5) * texel_m / axis_cos
+    radius = np.zeros(len(tiles))
+    np.maximum.at(radius, owner, reach)
+    along = np.einsum("ij,ij->i", normal, mean_n[owner])
+    height = np.abs(np.einsum("ij,ij->i", position - centre[owner], mean_n[owner]))
+    ok = (along >= 1.0 - HIERARCHY_DEFINES["FLAT_COSINE_TOLERANCE"]) & (
+        height <= HIERARCHY_DEFINES["FLAT_DISTANCE_TOLERANCE"] * radius[owner])
+    flat = np.bincount(owner, weights=~ok, minlength=len(tiles)) == 0
+    records = np.zeros((len(tiles), 12), dtype=np.float32)
+    records[:, :3], records[:, 3] = centre, radius
+    records[:, 4:7], records[:, 7] = mean_n, flat
+    records.view(np.int32)[:, 8], records.view(np.int32)[:, 9] = first, count
+    return records

@@ -4,7 +4,13 @@ Paper: "Real time Point Based Global Illumination" (blog article, University of 
 project; ../shared/papers/pbgi_texture_space.txt), after Bunnell, "Dynamic Ambient Occlusion
 and Indirect Lighting", GPU Gems 2 ch. 14 (2005). Every texel of a lightmap is a surfel (a
 small disk); light is transferred from every texel to every texel (no visibility), then the
-camera view reads the lightmap. Passes:
+camera view reads the lightmap:
+
+    E(r) = sum_e B_e a_e |cos_e| |cos_r| / (pi d^2 + a_e),   B_e = rho_e E_e,   L(x) = rho_x / pi * E(x)
+
+The measurements and the history behind the rules below (the figures that chose each rule and
+default, costs per scene) are in NOTES.md beside this file. Passes (stages `lightmap_direct`,
+`emitter_hierarchy`, `gather`, `resolve`; needs the shared gbuffer, shadow_map and direct):
 
 1. Texture-space G-buffer (in prepare: the benchmark's scenes are static, and the article
    re-renders it only where an object moves): the scene rasterised at its lightmap
@@ -14,20 +20,13 @@ camera view reads the lightmap. Passes:
    texel's surfel is the mean of the surface inside it, its area the exact area inside it.
    The UV unwrap (unwrap.py) is the article's: planar projection on the dominant normal axis,
    charts shelf-packed with one texel density for all charts; a chart that folds over itself
-   in projection is split into per-triangle charts. Rules recorded here (issue #12, the stress
-   suite's degenerate geometry on big_floor, whose floor is two triangles): triangles of a key
-   on either side of a T-junction (an edge of one split at a vertex of the other) join one
-   chart, as if the edge were shared: a T-junction on a floor triangle split the floor into two
-   charts, each with the whole floor's box, the density fell from 5.0 to 3.2 texels/m and the
-   indirect image changed by 9% (L1 at 32x24; now 5e-5); a thin diagonal chart's box follows
-   its principal axes when that halves its area or more: a zero-area sliver across the floor had
-   a 74^2-texel box, -9% density and an indirect change of 4.5% (now -1% density, 0.9%). The
-   unwrap works on the scene's float64 positions (re-centred), not the GPU's float32 copies, and
-   a face whose two largest |normal| components tie (45 degrees) takes the lower axis: with
-   argmax on float32 positions the rounding of each unit chose the axis of sponza's 45-degree
-   faces (12 to 33 of them changed between scales), its charts changed, the packing landed on
-   another density (36.71 instead of 36.65 texels per R) and the indirect image changed by 4.7%
-   (mean -4.6%) in the stress suite's scale perturbations 1e-2, 1e2 and 1e4 (now 1e-6).
+   in projection is split into per-triangle charts. Rules (issue #12): triangles of a key on
+   either side of a T-junction (an edge of one split at a vertex of the other) join one chart,
+   as if the edge were shared; a thin diagonal chart's box follows its principal axes when
+   that halves its area or more; the unwrap works on the scene's float64 positions
+   (re-centred), not the GPU's float32 copies, and a face whose two largest |normal|
+   components tie (45 degrees) takes the lower axis, so that the charts do not depend on the
+   scene's unit.
 2. `lightmap_direct`: per covered texel, the shadowed direct irradiance of the scene lights on
    each side (bench/gl/shaders/direct_lighting.glsl, shared shadow maps), stored as a surfel:
    position, normal, world area, radiosity B = rho E of each side.
@@ -35,10 +34,8 @@ camera view reads the lightmap. Passes:
    suggestion against O(n^2), "a quad tree of the geometry", as one tree over every texel of
    the scene (hierarchy.py, topology built in prepare): an octree of the surfels' positions (the
    3-D form of the quadtree) under one root per normal class (dominant axis and sign, as the
-   unwrap's charts). A tree per chart (the first version) does not aggregate across charts: a
-   real scene has thousands of small charts (sponza 7,300, conference 18,000, most of a texel or
-   two), every receiver visited at least one node per chart and the receiver tiles were per
-   chart (one workgroup per one-texel chart): sponza's gather took ~26 s per frame. The nodes
+   unwrap's charts); one tree, not one per chart, since real scenes have thousands of charts of
+   a texel or two, which a tree per chart does not aggregate. The nodes
    are rebuilt every frame from the surfels, level by level: summed area, area-weighted centroid
    and mean normal, a bounding radius, a flag "flat" (every leaf on the node's plane with its
    normal), and the power the leaves send towards a direction w, exactly as a sum over the
@@ -56,10 +53,7 @@ camera view reads the lightmap. Passes:
    holds the (flat) tile is skipped, since each of its texels sees the tile at cos_e = 0. As
    `refine_ratio` -> 0 the hierarchy is the all-pairs sum exactly; at the default 0.2 the
    lightmap differs from it by < 1% in the mean and < 3% per texel (tested on cornell_spot and
-   on a floor of 1,600 separate tiles; 0.4% and 0.5% on cornell_spot). The default was 0.25
-   with a tree per chart, whose 64-texel receiver tiles made the test stricter for most of
-   their texels; with 16-texel tiles, 0.2 gives the same error against Mitsuba (hidden_bounce
-   relMSE +5%, cornell_spot -9%).
+   on a floor of 1,600 separate tiles).
 5. `resolve`: each camera pixel maps its position through its triangle's chart map to the
    lightmap, interpolates the displayed irradiance of the side it shows bilinearly over
    covered texels, and outputs L = rho / pi * E.
@@ -89,32 +83,12 @@ is the price, and a moving light takes up to 2 W frames to settle.
 Lightmap size (texel density rule, unwrap.py): the lightmap side is the smallest that packs
 all charts at `texel_density` texels per scene radius R (the bounding sphere's, SceneFacts),
 at most `max_lightmap_resolution` (then the density is the largest that fits, below the
-target). A fixed side gives a scene texels in inverse proportion to its area (big_floor,
-2000 m^2, got 2 texels per metre at 128^2 and lost 13% of its indirect light: its 1 m spot
-and 15 cm cubes were a texel or two). The density is relative to R, not per metre, so that
-the lightmap does not depend on the scene's unit (rule recorded here, issue #12): with 20
-texels per metre (the first form of the rule), cornell_spot in centimetres (scaled by 1e-2,
-intensities by 1e-4) fell to the 16^2 minimum and its image changed by 9% (indirect 12%,
-mean -4.4%), hidden_bounce's by 16%; scaled by 1e2 it jumped to the cap. The default, 144
-texels per R, is the least at which big_floor (R 28.7 m) keeps the cap's 256^2 (5.0 texels
-per metre; at 100 per R, 3.5 texels/m, its indirect relMSE against Mitsuba doubles, 0.013 ->
-0.028, and at 72 it is 0.049), so every scene of the corpus gets the cap's 256^2: hidden_bounce
-17.2 texels/m, rooms 13.5, big_floor 5.0 (as with 20 texels/m; rooms had 13.9 before the
-T-junction rule below merged its charts); the real scenes were at the cap already (unwrap
-alone, before the GL's folded-chart splits: sponza 1.95, sibenik 1.47, conference 6.71
-texels/m, 1.95 / 1.48 / 6.60 before the T-junction and rotated-box rules); the small scenes that 20 texels/m left below the cap get it now:
-cornell_spot 42 texels/m (123^2 before), cornell_box 42, lit_wall_corner 56, sphere_inside 60.
-Their error hardly changes (128x96, indirect against the unshadowed Mitsuba reference at 256
-spp, mean ratio and relMSE, 20 texels/m -> the default: cornell_spot 0.995 / 0.0027 -> 0.995 /
-0.0025; cornell_box 1.007 / 0.0130 -> 1.009 / 0.0117; sphere_inside 0.9995 -> 1.0002, relMSE
-1e-4; lit_wall_corner 1.001 -> 1.004, relMSE 0.0037; rooms 1.006 / 0.0046 -> 1.009 / 0.0047;
-big_floor 0.971 / 0.0132 and hidden_bounce 1.004 / 0.0018 unchanged); their texels and their
-convergence window grow (cornell_spot 12,400 -> 52,600 texels, 7 -> 26 frames; sphere_inside
-3 -> 19; lit_wall_corner 3 -> 17; cornell_box 6 -> 23). Chart boxes have no margin
-texels of their own (unwrap.py: ceil(s w + 0.51) texels, the resolve clamps its bilinear taps
-to the chart's box), so a chart smaller than a texel costs one texel: with a texel of margin
-on each side (9 texels per small chart) sponza's 7,300 charts left it 0.09 texels per metre
-and conference's 18,000 did not fit 256^2.
+target). A fixed side would give a scene texels in inverse proportion to its area; the density
+is relative to R, not per metre, so that the lightmap does not depend on the scene's unit
+(issue #12). The default, 144 texels per R, is the least at which big_floor keeps the cap's
+256^2, so every scene of the corpus gets the cap's 256^2. Chart boxes have no margin texels of
+their own (unwrap.py: ceil(s w + 0.51) texels, the resolve clamps its bilinear taps to the
+chart's box), so a chart smaller than a texel costs one texel.
 
 Corrections to the article's formulas (each checked against the invariant it must satisfy):
 
@@ -147,55 +121,45 @@ texel density grows it converges to `manylights` with `emission=lambert` (the co
 unshadowed one-bounce integral); the error at a fixed density is largest in concave corners,
 where near-field texels see each other at distances comparable to their size. Cost per
 frame: all_pairs texels x budget pair evaluations per bounce; with the hierarchy each receiver
-tile walks this frame's slice of the tree (for the whole window, a tile visits ~1,150 nodes on
-cornell_spot's 12,400 texels, ~330 on a floor of 1,600 separate tiles; `read_visits()`).
-Measured at the defaults (gibench run --defaults-only --res 320x180 --frames 3 --timing-budget
-0, llvmpipe, 2 shared cores), frame_ms of pbgi / direct: sponza 1.43 s / 0.25 s (5.7x; with a
-tree per chart the gather alone took ~26-30 s), sibenik 1.58 / 0.36 (4.4x), conference 1.59 /
-0.34 (4.7x; it did not fit the lightmap before), cornell_spot 0.146 / 0.023 (6.5x),
-cornell_box 0.124 / 0.0074 (17x: a 30-triangle box whose direct light costs nothing); prepare
-2-6 s on the real scenes (up to 33 s on a loaded machine: the conservative lightmap
-rasterisation of 66k-331k triangles), the row (prepare, the untimed convergence of W = 22-26
-frames of work, 3 frames) 33-40 s. On the small procedural scenes the frame costs ~1.7-1.9x
-that of the tree per chart (cornell_spot, cornell_box; same process, alternating; the gather
-stage 1.7-2.7x): its nodes are larger (the power vectors) and its 16-texel tiles visit about
-as many nodes per texel at refine_ratio 0.2 as the 64-texel ones did at 0.25.
+tile walks this frame's slice of the tree (`read_visits()` counts the nodes visited).
 
-| parameter               | default   | range                 | meaning                                                   |
-|-------------------------|-----------|-----------------------|-----------------------------------------------------------|
-| texel_density           | 144.0     | 1 .. 10000            | target lightmap texels per scene radius (quality; sweep 36, 72, 144, 288) |
-| max_lightmap_resolution | 256       | 16 .. 1024            | largest lightmap side; the density drops when it is reached |
-| gather                  | hierarchy | hierarchy, all_pairs  | walk of one emitter octree over all texels, or every texel from every texel |
-| refine_ratio            | 0.2       | 0 .. 1                | hierarchy: node used whole when radius < ratio x distance (quality; sweep 0.1, 0.2, 0.5) |
-| emitter_budget          | 2048      | 0 .. 2^24             | emitter texels gathered per frame, rotating (0: all every frame) |
-| bounces                 | 1         | 1 .. 8                | light bounces summed (the benchmark compares one bounce)  |
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter               | default   | range                | meaning |
+|-------------------------|-----------|----------------------|---|
+| texel_density           | 144.0     | 1.0 .. 10000.0       | lightmap texels per scene radius (the lightmap side is the smallest that packs the charts at this density) (quality knob; sweep 36.0, 72.0, 144.0, 288.0) |
+| max_lightmap_resolution | 256       | 16 .. 1024           | largest lightmap side in texels (the density drops when reached) |
+| gather                  | hierarchy | hierarchy, all_pairs | emitters: 'hierarchy' walks one octree over every texel; 'all_pairs' sums every texel from every texel (the article's loop) |
+| refine_ratio            | 0.2       | 0.0 .. 1.0           | hierarchy: a node is used whole when its radius < this times its distance (quality knob; sweep 0.1, 0.2, 0.5) |
+| emitter_budget          | 2048      | 0 .. 16777216        | emitter texels gathered per frame, rotating (0: all every frame) |
+| bounces                 | 1         | 1 .. 8               | light bounces summed in the lightmap (the benchmark compares one bounce) |
+<!-- end of parameters -->
 
 A scene whose charts cannot be packed into the lightmap (too many separate charts for the
 resolution) is skipped with a message naming `max_lightmap_resolution`.
+
+Example: `gibench run --scenes cornell_spot,rooms --methods pbgi --res 128x96 --param
+pbgi.gather=hierarchy,all_pairs` (the hierarchy against the article's all-pairs loop).
 
 Limits of the stress suite's parameter extremes (`gibench stress`, issue #12; each a cost the
 article states, at the suite's 300 s case timeout on llvmpipe, 2 shared cores):
 Stress limit params:refine_ratio=0: every node refined to its texels is the article's all-pairs loop ("Of course this pass is really slow"), texels^2 transfers per bounce (52,600^2 = 2.8e9 on cornell_spot's 256^2 lightmap) through the stackless walk: over 300 s (gather=all_pairs, the same sum without the walk, finishes)
 Stress limit params:bounces=8: the untimed first frame converges bounces x W frames of the amortised gather (the article computes the gather "in more than one frame by sampling only a few emitters each time"), each bounce re-gathering its window: 8 x 26 = 208 frames of work on cornell_spot's 256^2 lightmap, over 300 s (hidden_bounce, 256^2 already with 20 texels/m, timed out before the density rule changed)
 Stress limit params:max_lightmap_resolution=1024: on a real scene the cap no longer binds, so the untimed first frame converges a window of 7x the texels: sibenik 291,941 texels and W = 143 frames (42,702 and 21 at the default 256), each frame's gather over 7x the receivers, ~50x the default's convergence work, over 300 s with a second stress run sharing the 2 cores; conference (its cap at 1024 done within 300 s on a quieter machine), cornell_box and the procedural scenes pass
+Stress limit coplanar: coincident coplanar faces are two charts emitting the same surface (every triangle is unwrapped and emits) while Mitsuba's rays see one surface: the overlapped area emits twice and takes lightmap space (cornell_box 64x48: mean +6.1%; big_floor indirect 5.6%, lit_wall_corner 1.9%).
 
 Quality ladder (`gibench run`), fast -> accurate:
   1. texel_density 72, max_lightmap_resolution 192, refine_ratio 0.5;
   2. the defaults (144 texels per scene radius, 256^2 at most, refine_ratio 0.2);
   3. texel_density 288, max_lightmap_resolution 384.
 The lightmap's density is the error that dominates (the hierarchy at 0.2 is within 1% of the
-all-pairs sum, at 0.5 within ~4%), so the rungs turn the density and, on the large and real
-scenes where the cap binds (sponza gets 1.3 / 1.8 / 2.8 texels per metre), the cap with it;
-the top rung keeps refine_ratio 0.2 (0.1 costs ~2.5x the visits for < 1%). The per-frame cost
-hardly depends on the rung (the emitter budget fixes the emitters per frame; more receivers
-walk smaller slices of a larger tree); the convergence window (untimed frame 0) grows with
-the texel count: on sponza the top rung's window is 48 frames (98k texels, 2x the default's).
-Stress limit coplanar: coincident coplanar faces are two charts emitting the same surface (every triangle is unwrapped and emits) while Mitsuba's rays see one surface: the overlapped area emits twice and takes lightmap space (cornell_box 64x48: mean +6.1%; big_floor indirect 5.6%, lit_wall_corner 1.9%).
+all-pairs sum), so the rungs turn the density, and the cap with it where it binds; the top rung
+keeps refine_ratio 0.2 (0.1 costs ~2.5x the visits for < 1%).
 """
 from __future__ import annotations
 
 import math
-import re
 from pathlib import Path
 
 import moderngl
@@ -205,21 +169,13 @@ from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.context import check_gl, loop_chunks, park
 from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
-from .hierarchy import build_tree
+from .hierarchy import HIERARCHY_DEFINES, build_tree, tile_records
 from .unwrap import LightmapTooSmall, chart_image, find_charts, unwrap
 
 SHADERS = Path(__file__).parent / "shaders"
 PBGI_DEFINES = {"BINDING_PBGI_TRIANGLES": 3, "BINDING_PBGI_TEXELS": 4, "BINDING_PBGI_SURFELS": 5,
                 "BINDING_PBGI_EMITTERS": 6, "BINDING_PBGI_NODE_LINKS": 7, "BINDING_PBGI_LEVEL_NODES": 8,
                 "BINDING_PBGI_TILES": 9, "BINDING_PBGI_VISITS": 10}
-HIERARCHY_DEFINES = {
-    "FLAT_COSINE_TOLERANCE": 1e-6,    # a node is flat when every leaf normal is within this (1 - cos) of its normal
-    "FLAT_DISTANCE_TOLERANCE": 1e-5,  # ... and every child centre within this many node radii of its plane
-    "PLANE_TOLERANCE": 1e-4,          # a receiver within this many node radii of a flat node's plane gets nothing from it
-}
-# the manual's "Stress limit PATTERN: reason" lines (PATTERN may hold colons: params:NAME=VALUE),
-# handed to `gibench stress` as the class's stress_limits (it reads the class, not this module)
-STRESS_LIMITS = dict(re.findall(r"^Stress limit (\S+): (.+)$", __doc__, re.MULTILINE))
 TILE_TEXELS = 16            # hierarchical gather: one workgroup per tile of at most 16 nearby texels
 MAX_WORK_GROUPS = 65535     # per dispatch dimension (the GL minimum of GL_MAX_COMPUTE_WORK_GROUP_COUNT)
 WELD_TOLERANCE_REL = 1e-6   # vertices closer than this (times the scene radius) share chart edges
@@ -234,36 +190,6 @@ def _unwrap_positions(gpu, scene) -> np.ndarray:
     return np.asarray(scene.vertices, dtype=np.float64) - gpu.origin
 
 
-def _tile_records(tiles, position, normal, area, texel_m: float) -> np.ndarray:
-    """ReceiverTile records (gather_hierarchy.glsl) of the tiles (first leaf, count): bounding
-    sphere of the texels (area-weighted centre; each texel's radius as its leaf node's), mean
-    normal and flat flag (every texel with that normal, on its plane: the tolerances of the
-    emitter nodes), then the leaf range. Texel arrays in leaf order."""
-    first, count = tiles[:, 0], tiles[:, 1]
-    owner = np.repeat(np.arange(len(tiles)), count)
-    a = area[:, None]
-    centre = np.zeros((len(tiles), 3))
-    np.add.at(centre, owner, a * position)
-    centre /= np.bincount(owner, weights=area)[:, None]
-    mean_n = np.zeros((len(tiles), 3))
-    np.add.at(mean_n, owner, a * normal)
-    mean_n /= np.maximum(np.linalg.norm(mean_n, axis=1), 1e-30)[:, None]
-    axis_cos = np.maximum(np.abs(normal).max(axis=1), 1.0 / np.sqrt(3.0))
-    reach = np.linalg.norm(position - centre[owner], axis=1) + np.sqrt(0.5) * texel_m / axis_cos
-    radius = np.zeros(len(tiles))
-    np.maximum.at(radius, owner, reach)
-    along = np.einsum("ij,ij->i", normal, mean_n[owner])
-    height = np.abs(np.einsum("ij,ij->i", position - centre[owner], mean_n[owner]))
-    ok = (along >= 1.0 - HIERARCHY_DEFINES["FLAT_COSINE_TOLERANCE"]) & (
-        height <= HIERARCHY_DEFINES["FLAT_DISTANCE_TOLERANCE"] * radius[owner])
-    flat = np.bincount(owner, weights=~ok, minlength=len(tiles)) == 0
-    records = np.zeros((len(tiles), 12), dtype=np.float32)
-    records[:, :3], records[:, 3] = centre, radius
-    records[:, 4:7], records[:, 7] = mean_n, flat
-    records.view(np.int32)[:, 8], records.view(np.int32)[:, 9] = first, count
-    return records
-
-
 class TextureSpacePBGI(MethodBase):
     name = "pbgi"
     summary = "Texture-space point-based GI: lightmap texels as surfels, Bunnell disk transfer over an emitter octree"
@@ -271,20 +197,20 @@ class TextureSpacePBGI(MethodBase):
               {"texel_density": 288.0, "max_lightmap_resolution": 384})
     stages = ("lightmap_direct", "emitter_hierarchy", "gather", "resolve")
     needs = frozenset({"gbuffer", "shadow_map", "direct"})
-    stress_limits = STRESS_LIMITS
     params = {
         "texel_density": Param(144.0, "lightmap texels per scene radius (the lightmap side is the smallest that "
                                       "packs the charts at this density)", 1.0, 10000.0, quality=True,
                                sweep=(36.0, 72.0, 144.0, 288.0)),
         "max_lightmap_resolution": Param(256, "largest lightmap side in texels (the density drops when reached)",
                                          16, 1024),
-        "gather": Param("hierarchy", "emitters: 'hierarchy' (one octree over every texel) or 'all_pairs'",
+        "gather": Param("hierarchy", "emitters: 'hierarchy' walks one octree over every texel; 'all_pairs' "
+                                     "sums every texel from every texel (the article's loop)",
                         choices=("hierarchy", "all_pairs")),
         "refine_ratio": Param(0.2, "hierarchy: a node is used whole when its radius < this times its distance",
                               0.0, 1.0, quality=True, sweep=(0.1, 0.2, 0.5)),
         "emitter_budget": Param(2048, "emitter texels gathered per frame, rotating (0: all every frame)",
                                 0, 2 ** 24),
-        "bounces": Param(1, "light bounces summed in the lightmap", 1, 8),
+        "bounces": Param(1, "light bounces summed in the lightmap (the benchmark compares one bounce)", 1, 8),
     }
 
     # ------------------------------------------------------------------ prepare (untimed)
@@ -342,7 +268,7 @@ class TextureSpacePBGI(MethodBase):
             self.hierarchy_program = load_compute(ctx, SHADERS / "emitter_hierarchy.glsl", defines)
             tiles = tree.receiver_tiles(TILE_TEXELS)
             self.tile_count = len(tiles)
-            self.tiles = ctx.buffer(_tile_records(tiles, position, normal, area, 1.0 / self.unwrap.scale).tobytes())
+            self.tiles = ctx.buffer(tile_records(tiles, position, normal, area, 1.0 / self.unwrap.scale).tobytes())
             self.visits = ctx.buffer(reserve=self.tile_count * 4)
             self.visits.clear()
             self.gather_program = load_compute(ctx, SHADERS / "gather_hierarchy.glsl", defines)

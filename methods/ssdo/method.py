@@ -38,35 +38,20 @@ integral by 3-point Gauss-Legendre, the column counted at least MIN_COLUMN_REL =
 long, which caps A_i where the column grazes the ball's rim). With it, the sum estimates the
 one-bounce light from every on-screen first-layer sender within r_max and above x's tangent
 plane without bias: with many samples and a large r_max it converges to the screen-sender bound
-(`screen_bound.py`: big_floor 0.75 .. 0.78 of the reference at N = 512 against a bound of 0.76;
-lit_wall_corner 0.97 against 0.995). A_s is that area only in one configuration; elsewhere it
+(`studies/ssdo_screen_bound.py`). A_s is that area only in one configuration; elsewhere it
 misweights by the blocked volume behind the sender: a sender seen at a grazing angle (small
-|<n_y, u>|) or with a short column (near the ball's rim) stands for much more area than A_s,
-and big_floor's spot-lit floor patch, a compact sender seen at about 20 degrees, came out at
-0.25 of the reference (bound 0.76) with A_s and volume-uniform samples, 0.80 now.
+|<n_y, u>|) or with a short column (near the ball's rim) stands for much more area than A_s
+(big_floor's spot-lit floor patch, a compact sender seen at a grazing angle: NOTES.md).
 
 Hemisphere radius (the default is derived from the view). With `radius_rel` = 0 (default), r_max
 = `radius_view_rel` x the mean view depth of the covered pixels, computed on the GPU every frame
 (stage `view_scale`: depth sums over blocks of pixels on a power-of-two grid, its mip chain of
 exact 2 x 2 averages, the 1 x 1 level read by the sampling pass; no readback). `radius_rel` > 0
-sets r_max = radius_rel x the scene radius instead (the previous default was 0.5 of it). Why the
-view: SSDO only sees senders on screen, and the scene radius is set by geometry that may not be
-(big_floor's 40 m floor made that r_max 14 m). d_clamp = `clamp_distance_rel` x r_max, so the
-whole estimate is independent of the unit of length. With unbiased patch areas r_max is no
-longer a gain to calibrate but a reach: a larger one counts farther senders and spreads the N
-samples over more volume (more noise). radius_view_rel = 1.5 (mean over seeds 0..4 at 128x96,
-N = 32; ratio of image means to Mitsuba's unshadowed one-bounce reference):
-
-| r_max / depth   | lit_wall_corner (near corner) | big_floor (seed range) |
-|-----------------|-------------------------------|------------------------|
-| 1.15            | 0.93 (0.89)                   | 0.72 (0.60 .. 1.01)    |
-| 1.5 (default)   | 0.94 (0.86)                   | 0.80 (0.65 .. 1.04)    |
-| 2.0             | 0.92 (0.83)                   | 1.07 (0.91 .. 1.42), relMSE 2x |
-
-(the former default, volume-uniform samples with A_s at 1.15, seeds 0..2: 0.97 (0.88) and 0.27
-(0.22 .. 0.32), relMSE 0.11 and 0.78 against 0.035 and 0.11 now; it matched lit_wall_corner
-only because its over-weighting of near senders, 3/2 sqrt(1 - t^2 / r_max^2) per unit area,
-cancelled its truncation at r_max.)
+sets r_max = radius_rel x the scene radius instead. Why the view: SSDO only sees senders on
+screen, and the scene radius is set by geometry that may not be. d_clamp = `clamp_distance_rel`
+x r_max, so the whole estimate is independent of the unit of length. With unbiased patch areas
+r_max is no longer a gain to calibrate but a reach: a larger one counts farther senders and
+spreads the N samples over more volume (more noise); radius_view_rel = 1.5 by default.
 
 Where this implementation differs from the paper:
 
@@ -77,26 +62,18 @@ Where this implementation differs from the paper:
 - both cosines are clamped at 0 (the paper leaves it implicit);
 - the patch area is the one each sample stands for (above), not the constant A_s.
 
-Which scenes SSDO can see (and claims). `methods/ssdo/screen_bound.py` computes, in numpy, the
+Which scenes SSDO can see (and claims). `studies/ssdo_screen_bound.py` computes, in numpy, the
 exact unshadowed bounce from every on-screen pixel (first layer) to every other: the most any
-screen-space one-bounce method can return. Its share of Mitsuba's reference (128x96, `main`):
-lit_wall_corner 0.995, big_floor 0.76, sphere_inside 0.30, rooms 0.086 (`far`: 0.000),
-cornell_spot 0.003, hidden_bounce 0.000.
-SSDO claims the scenes whose bound is at least 0.85, i.e. whose senders are on screen:
-`lit_wall_corner` (within [0.85, 1.15] of the reference, and at least half of it on the floor
-near the corner). `big_floor` is not claimed: a quarter of its bounce comes from the part of the
-spot-lit floor below the view; SSDO now reaches its bound there (0.80, seeds 0..4 from 0.65 to
-1.04), the remaining quarter is out of any screen-space method's reach. `cornell_spot`: the
-spot lights the ceiling above and behind the camera, and no pixel of the ceiling is on screen
-(the camera looks 3 degrees down with a 30 degree half field of view: 0 of 12288 pixels at
-128x96); the only directly lit surface on screen is the top strip of the tall block's front
-face (730 pixels), whose light lands mostly off screen. `hidden_bounce`: every lit surface is
-behind the camera by design. `rooms`: the lit room is seen only through a door. That light is
-SSDO's documented blind spot, not a bug; the same near-zero figures for its ratio follow. At the
-defaults (seed 0, 128x96; `python -m studies.ssdo_screen_bound RUN_DIR`) SSDO's share follows the
-bound on every default scene: rooms/main 0.094 (bound 0.091), sphere_inside 0.29 (0.30),
-cornell_spot 0.001 (0.003), hidden_bounce and rooms/far 0 (0), lit_wall_corner 0.91 (0.995),
-big_floor 1.04 (0.76; seed 0 is the highest of seeds 0..4).
+screen-space one-bounce method can return. SSDO claims the scenes whose bound is at least 0.85
+of Mitsuba's reference, i.e. whose senders are on screen: `lit_wall_corner` (within [0.85, 1.15]
+of the reference, and at least half of it on the floor near the corner). `big_floor` is not
+claimed: a quarter of its bounce comes from the part of the spot-lit floor below the view, out
+of any screen-space method's reach. `cornell_spot`: the spot lights the ceiling above and behind
+the camera, and no pixel of the ceiling is on screen; the only directly lit surface on screen is
+the top strip of the tall block's front face, whose light lands mostly off screen.
+`hidden_bounce`: every lit surface is behind the camera by design. `rooms`: the lit room is
+seen only through a door. That light is SSDO's documented blind spot, not a bug; its share of
+the reference follows the bound on every default scene (NOTES.md has the figures).
 
 Interleaved sampling: the frame's base set of N samples (from `frame.random_u32`, the same
 for every pixel; cos(theta) stratified) is shifted by a Cranley-Patterson offset that depends
@@ -106,40 +83,49 @@ distance from the centre's tangent plane is <= `blur_depth_threshold` x the cent
 depth and its normal's cosine with the centre's is >= `blur_normal_threshold`. The window is
 centred on the pixel, an odd number of taps, so it never shifts the image: an odd `blur_size`
 is a plain box of that many taps; an even one (default 4) has blur_size + 1 taps whose two end
-taps weigh 1/2 (the former box of taps -size/2 .. size/2 - 1 moved the image half a pixel
-towards the lower-left). With blur_size a multiple of M every set enters each pixel of a flat
-region with the same weight. Same seed and frame -> same image.
+taps weigh 1/2. With blur_size a multiple of M every set enters each pixel of a flat region
+with the same weight. Same seed and frame -> same image.
 
 Direct light: SSDO's directional occlusion replaces shadowing of *distant* (environment) light
 by a screen-space visibility test. The scene model has no environment light; point, spot and
 directional lights are handled exactly by the shared shadow-mapped direct pass, which this
 method returns unchanged as its direct component (no SSDO occlusion is applied to it).
 
-| parameter             | default | range        | meaning                                                        |
-|-----------------------|---------|--------------|----------------------------------------------------------------|
-| sample_count          | 32      | 1 .. 1024    | N, hemisphere samples per pixel (quality; sweep 4 .. 64)       |
-| radius_rel            | 0.0     | 0 .. 4       | r_max relative to the scene radius; 0: from the view           |
-| radius_view_rel       | 1.5     | 1e-4 .. 10   | r_max / mean view depth of the covered pixels (radius_rel = 0) |
-| pattern_size          | 4       | 1 .. 16      | M: interleaved pattern of M x M pixels (M^2 sample sets)       |
-| blur_size             | 4       | 1 .. 32      | effective width of the centred blur window (1: no blur)        |
-| blur_depth_threshold  | 0.05    | 0 .. 10      | max tangent-plane distance of a blur neighbour / view depth    |
-| blur_normal_threshold | 0.8     | -1 .. 1      | min cosine between the normals of a blur neighbour and centre  |
-| clamp_distance_rel    | 0.02    | 1e-6 .. 1    | d_clamp of max(d_clamp, d), relative to r_max                  |
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter             | default | range          | meaning |
+|-----------------------|---------|----------------|---|
+| sample_count          | 32      | 1 .. 1024      | N, hemisphere samples per pixel (quality knob; sweep 4, 8, 16, 32, 64) |
+| radius_rel            | 0.0     | 0.0 .. 4.0     | hemisphere radius r_max relative to the scene radius; 0: derived from the view (radius_view_rel x the mean view depth of the covered pixels) |
+| radius_view_rel       | 1.5     | 0.0001 .. 10.0 | r_max relative to the mean view depth of the covered pixels, used when radius_rel = 0 |
+| pattern_size          | 4       | 1 .. 16        | M: interleaved sample pattern of M x M pixels (M^2 sample sets) |
+| blur_size             | 4       | 1 .. 32        | effective width of the centred, separable geometry-aware blur (1: no blur) |
+| blur_depth_threshold  | 0.05    | 0.0 .. 10.0    | max distance of a blur neighbour from the centre's tangent plane, relative to the centre's view depth |
+| blur_normal_threshold | 0.8     | -1.0 .. 1.0    | min cosine between a blur neighbour's normal and the centre's |
+| clamp_distance_rel    | 0.02    | 1e-06 .. 1.0   | distance clamp d_clamp of max(d_clamp, d), relative to r_max |
+<!-- end of parameters -->
 
 Resolution: r_max and d_clamp are world lengths (resolution independent); M and blur_size are
 in pixels and keep their meaning at any resolution (the blur averages the M^2 sets).
 
 Quality ladder (fast -> accurate; `ladder`): sample_count 8, 16, 32 (default), 64, 128: N is the
 knob that trades time for noise (the estimator's mean does not depend on N; its cost is
-O(pixels x N)); r_max is a reach, set from the view, not a quality setting. relMSE against the
-reference (seeds 0..4, 128x96): lit_wall_corner 0.087 / 0.035 / 0.017 and big_floor
-0.30 / 0.11 / 0.068 at N = 8 / 32 / 128.
+O(pixels x N)); r_max is a reach, set from the view, not a quality setting.
+
+Example:
+
+    gibench run --scenes lit_wall_corner --methods ssdo --res 128x96 --defaults-only
+    gibench run --scenes lit_wall_corner --methods ssdo --res 128x96 --param ssdo.sample_count=8,128
 
 Stages: `view_scale` (one full-screen pass + mipmaps), `indirect_samples` (full screen), `blur`
-(two full-screen passes), after the shared `gbuffer_shadow` and `direct_light`. Cost:
-O(pixels x N), independent of the triangle count; the column density of each blocked sample
-(3 quadrature points) made `indirect_samples` about 1.1 .. 1.5x as long as with the constant A_s
-(same process, minimum of 6 frames, big_floor and lit_wall_corner at 128x96 and 320x180).
+(two full-screen passes), after the shared `gbuffer_shadow` and `direct_light`. Needs: gbuffer,
+shadow_map, direct. Cost: O(pixels x N), independent of the triangle count.
+
+Measurements: NOTES.md beside this file holds the figures (the screen-sender bound per scene,
+the radius comparison, the ladder's relMSE, the cost of the column density) and the history of
+the defaults; `python -m studies.ssdo_screen_bound RUN_DIR` tabulates SSDO's and the bound's
+share of the reference for a `gibench run` folder.
 """
 from __future__ import annotations
 

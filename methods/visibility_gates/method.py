@@ -34,7 +34,9 @@ Visibility is therefore V = 1 inside a visibility cluster (quasi-convexity: no s
 V = [the segment reaches the pixel's cluster through gates] otherwise. With the same VPLs the result is
 <= `ir_unshadowed` at every pixel, equal where the scene is one cluster (a sphere seen from
 inside: rho^2 I / (pi R^2)). The light assignment culls exactly: it never drops a VPL the final
-segment test would accept (conservative cone/sphere test).
+segment test would accept (conservative cone/sphere test). Needs: gbuffer, shadow_map, direct,
+rsm, precompute. The measured ratios per scene, the cluster and gate counts and what each
+correction below fixed are in NOTES.md beside this file.
 
 Paper formula corrections and readings (checked against the invariant each must satisfy):
 - Gather: the paper writes L(P->V) = sum f_r G V L(P_i) with L(P_i) "the intensity of the VPL".
@@ -52,7 +54,7 @@ Paper formula corrections and readings (checked against the invariant each must 
   grows a spur towards every convex corner and edge of a room; with maximal balls shrinking
   along it, each spur became its own small visibility cluster reachable only through a small
   gate. Before segmentation every terminal branch all of whose nodes its junction sees in a
-  straight line through the empty space is removed (topology.prune_spurs; one pass over the
+  straight line through the empty space is removed (skeleton.prune_spurs; one pass over the
   original branches, so a room behind a door, which has junctions of its own, is never pruned).
 - Maximal balls (IV.A, "the radius of the maximal ball contained in the empty space"): the
   exact distance from the node to the nearest triangle (a k-d tree of surface samples gives
@@ -61,14 +63,13 @@ Paper formula corrections and readings (checked against the invariant each must 
   voxel surface and made the radii, hence the clusters, depend on voxel_resolution.
 - Voxelization (IV.A, "a binary voxelization"): a voxel is occupied when its centre is within
   sqrt(3)/2 voxel of a triangle (exact distance). The thinning treats the empty space as
-  26-connected; with the earlier sampled voxelization (a voxel holding a point of a triangle)
-  a tilted wall had 26-connected holes, the skeleton of cornell_spot passed through its
-  blocks' walls and the box split into 19 clusters joined by 0.02 m gates at resolution 64.
-- Open scenes (the paper's own Sponza has an open roof; before, they were skipped): the empty
-  space is the enclosed components plus the component around the geometry that holds a camera
-  eye or a positional light ("the empty space, where light travels", III), closed by the
-  scene's bounding box enlarged by two voxels. A scene whose cameras and lights are all
-  outside that box and which encloses nothing is skipped (SkipRow).
+  26-connected; a sampled voxelization (a voxel holding a point of a triangle) leaves
+  26-connected holes in a tilted wall, through which the skeleton passes.
+- Open scenes (the paper's own Sponza has an open roof): the empty space is the enclosed
+  components plus the component around the geometry that holds a camera eye or a positional
+  light ("the empty space, where light travels", III), closed by the scene's bounding box
+  enlarged by two voxels. A scene whose cameras and lights are all outside that box and which
+  encloses nothing is skipped (SkipRow).
 - Merging (not in the paper; `merge_gate_fraction`): after the greedy clustering, two clusters
   joined by a gate whose radius (the paper's min of the two maximal balls) is at least
   `merge_gate_fraction` x the smaller cluster's largest maximal ball are merged, widest first,
@@ -78,44 +79,37 @@ Paper formula corrections and readings (checked against the invariant each must 
   third of the rooms' balls) stays a gate.
 - Gate shape and place (the paper's own improvement, VI.B: "use polygon instead of disks to
   better match the shape of separation between clusters"; its disk, at the middle of the
-  segmented edge, sat half a room before a door with the door's half-width as radius and let
-  a third of the door's light through: rooms 0.59x ir_shadowed): the gate lies at the
-  narrowest node of the skeleton line the segmented edge replaces, in a plane through it:
-  first the plane of the opening's frame (the area-weighted mean plane of the triangles near
-  the node that face along the skeleton, within 30 degrees: a door's wall, a thick wall's
-  mid-plane), then planes normal to the line (tangents over 8..1 nodes) or to the edge; the
-  first whose bounded opening is within 5 % of the smallest is taken (a plane tilted against a
-  thin wall measures a few % small). The opening (the plane's region farther than sqrt(3)/2
-  voxel from every triangle, rasterised) gives a convex polygon: its convex hull (at most 16
-  edges), each edge then placed where the opening ends by exact distances (marching outward:
-  the region ends at s_f, the occluder's nearest approach beyond it is d_min, the border is
-  sqrt(w^2 - d_min^2) past s_f): a door's rectangle exactly, in the wall's plane. Where no
-  plane has a bounded opening within 4 maximal-ball radii (open space), the regular 16-gon of
-  that node's maximal-ball disk's area. Before, an ellipse with the opening's second moments
-  (the same area for a rectangle) stuck out of a door's sides and lintel and cut its corners:
-  rooms 'far' lit room 3 in hard elliptical patches where the reference's patch has the
-  door's shape.
+  segmented edge, sits half a room before a door with the door's half-width as radius): the gate
+  lies at the narrowest node of the skeleton line the segmented edge replaces, in a plane
+  through it: first the plane of the opening's frame (the area-weighted mean plane of the
+  triangles near the node that face along the skeleton, within 30 degrees: a door's wall, a
+  thick wall's mid-plane), then planes normal to the line (tangents over 8..1 nodes) or to the
+  edge; the first whose bounded opening is within 5 % of the smallest is taken (a plane tilted
+  against a thin wall measures a few % small). The opening (the plane's region farther than
+  sqrt(3)/2 voxel from every triangle, rasterised) gives a convex polygon: its convex hull (at
+  most 16 edges), each edge then placed where the opening ends by exact distances (marching
+  outward: the region ends at s_f, the occluder's nearest approach beyond it is d_min, the
+  border is sqrt(w^2 - d_min^2) past s_f): a door's rectangle exactly, in the wall's plane.
+  Where no plane has a bounded opening within 4 maximal-ball radii (open space), the regular
+  16-gon of that node's maximal-ball disk's area. (An ellipse with the opening's second moments
+  sticks out of a door's sides and lintel and cuts its corners.)
 - Clusters split at the gates (paper VII: the artefacts "would disappear if the visibility
   gates were perfect manifolds separating clusters"; IV.A gives each voxel its nearest skeleton
   node): the voxel -> cluster grid is flooded from the skeleton nodes through the empty space
   cut along the gates (each gate rasterised as a digital plane inside its polygon grown by a
   voxel); a cluster's nodes beyond one of its gates (a door's own nodes) seed nothing; in a
   gate's voxels and its wall's voxels in its plane (up to 3 gate radii away) the side of the
-  gate's plane decides between its two clusters. Before, the nearest-node grid put the door's
-  neighbourhood of room 1 in room 2's cluster (94 of 3805 VPLs of room 1 then lit room 2
-  unshadowed: room 2 seen through door 2 from 'far' got 1.32x the exact light with 4096 VPLs)
-  and split the walls' voxels arbitrarily.
+  gate's plane decides between its two clusters. (The nearest-node grid puts a door's
+  neighbourhood of one room in the next room's cluster and splits the walls' voxels
+  arbitrarily.)
 - Which view samples a cone lights (`gate_hops`): the paper tests the cones "against view
   samples contained in other clusters" (V) while its Fig. 11 lights "the neighbor visibility
-  cluster". Lighting any cluster behind a gate leaks through walls (rooms 'far', two offset
-  doors from the light: 1.45x ir_shadowed). Here the segment VPL -> pixel walks from cluster to
-  cluster, each time through the first gate of the current cluster it crosses, and lights the
-  pixel when it enters the pixel's cluster within `gate_hops` gates (default 4): the cones to
-  "other clusters" narrowed to the light that passes every gate on its way. With gates that
-  are the openings and clusters split at them, this is exact visibility on rooms: from 'far',
-  two thirds of room 3's one-bounce light comes from room 1 through both doors, which one hop
-  (Fig. 11) loses (room 3 at 0.45x the exact light, the view 0.85x the reference); with the
-  earlier ellipses a second hop overshot (1.26x).
+  cluster". Lighting any cluster behind a gate leaks through walls. Here the segment VPL ->
+  pixel walks from cluster to cluster, each time through the first gate of the current cluster
+  it crosses, and lights the pixel when it enters the pixel's cluster within `gate_hops` gates
+  (default 4): the cones to "other clusters" narrowed to the light that passes every gate on its
+  way. With gates that are the openings and clusters split at them, this is exact visibility on
+  rooms, where light crosses two doors, which one hop (Fig. 11) loses.
 - alpha: "add all neighbors of m ... for which radius of maximal balls does not differ more than
   alpha % of the maximal radius contained in the cluster" / "how similar two maximal balls must
   be": the two balls compared are the popped node m's and its neighbour k's, the tolerance is
@@ -133,51 +127,42 @@ Paper formula corrections and readings (checked against the invariant each must 
   of one word's bits when a word's walks alone would pass it; a scene whose single VPL walk
   passes it is skipped (SkipRow).
 
-Known behaviour (README.md has the measured tables): at the defaults, 128x96, seed 0, mean
-indirect / the visible Mitsuba reference: cornell_spot 1.01, hidden_bounce 1.05, rooms 0.99
-(main) and 1.13 (far; ir_shadowed with the same VPLs 1.04 and 1.28, its shadow maps leak along
-the walls' junctions), big_floor 1.04, sphere_inside 1.00, sponza 1.58 (ir_shadowed with the
-same 256 VPLs 1.41, max_triangle_draws raised: unclamped 1/d^2 VPL spikes; 1.15 with 64 VPLs,
-1.21 with 1024, where ir_shadowed is 1.05: 1.15 of it comes from inside the merged, not quite
-convex clusters alone, the paper's own over-estimate, VI.B);
-lit_wall_corner is skipped (open, camera and light outside its bounding box). At 320x180:
-rooms 0.99 (main), 1.11 (far). On rooms the result is the same VPLs summed with exact
-visibility (both doors are gates, every room a cluster), so what is left is the VPLs' own
-noise: 'far' (160x120) is 0.76..1.22x the reference over seeds 0..3 with 256 VPLs, exact
-visibility alike, 0.97 with 4096. Before the gate polygons, the clusters split at the gates and the walk
-through several gates: rooms 'far' 1.29 (room 3 0.69x, room 2 through door 2 1.32x the exact
-light with 4096 VPLs) with hard elliptical patches; before the exact-distance topology:
-cornell_spot 0.65, hidden_bounce 0.63, rooms 0.61, big_floor and sponza skipped. A box with
-blocks, and hidden_bounce's room, is one cluster at voxel_resolution 32, 64 and 128 (the
-blocks' closed interiors are clusters of their own, which no gate reaches); there the method
-equals ir_unshadowed. At voxel_resolution 32 the walls (sqrt(3)/2 voxel on each side) close
-rooms' second door (0.9 m, 2.4 voxels). Precomputation on sponza (66k triangles): about 15 s
-at resolution 64 on the shared 2-core machine, mostly exact distances (voxels, gate
-openings and their edges).
+Known behaviour (NOTES.md has the figures): with the same VPLs the result is ir_unshadowed's
+wherever the scene is one visibility cluster (a box with blocks, hidden_bounce's room), and on
+rooms the same VPLs summed with exact visibility; an open scene whose cameras and light are
+outside its bounding box (lit_wall_corner) is skipped. The excess inside merged, not quite
+convex clusters is the paper's own over-estimate (VI.B).
 
 Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024, the IR baselines' VPL counts,
 so each rung compares with ir_shadowed at equal VPLs: the gather and the light assignment cost
 VPLs x gates, the topology (untimed) is shared by all rungs; voxel_resolution is not a rung (it
 changes the untimed precomputation only, and at 32 closes rooms' second door).
 
-| parameter           | default | range      | meaning                                                           |
-|---------------------|---------|------------|-------------------------------------------------------------------|
-| vpl_count           | 256     | 1 .. 65536 | VPLs per frame (quality; sweep 16, 64, 256, 1024)                 |
-| voxel_resolution    | 64      | 16 .. 256  | voxels along the scene's longest side (quality; 32 64 128)        |
-| alpha_percent       | 20      | 0 .. 1000  | radius similarity of clustered skeleton nodes (%)                 |
-| merge_gate_fraction | 0.75    | 0 .. 2     | merge clusters whose gate is >= this x the smaller's largest ball |
-| gate_radius_scale   | 1.0     | 0 .. 8     | gate polygon size multiplier (0: no light through gates)          |
-| gate_hops           | 4       | 1 .. 16    | gates light may cross VPL -> pixel (1: into a neighbour, Fig. 11) |
-| use_gates           | true    | bool       | false: light stays inside visibility clusters (paper VI.B)        |
-| depth_slices        | 16      | 1 .. 256   | clustered-shading depth slices (exponential in depth)             |
-| clamp_distance_rel  | 1e-4    | 1e-7 .. 1  | eps of max(eps, d), relative to the scene radius                  |
+Parameters:
+
+<!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
+| parameter           | default | range         | meaning |
+|---------------------|---------|---------------|---|
+| vpl_count           | 256     | 1 .. 65536    | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
+| voxel_resolution    | 64      | 16 .. 256     | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
+| alpha_percent       | 20.0    | 0.0 .. 1000.0 | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
+| merge_gate_fraction | 0.75    | 0.0 .. 2.0    | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
+| gate_radius_scale   | 1.0     | 0.0 .. 8.0    | gate size multiplier (1: the polygon of the opening, or the maximal-ball disk in open space; 0: no light crosses gates) |
+| gate_hops           | 4       | 1 .. 16       | gates a VPL's light may cross on its way to a pixel (1: into a neighbouring cluster only, paper Fig. 11) |
+| use_gates           | true    | bool          | false: indirect light stays inside visibility clusters (paper VI.B) |
+| depth_slices        | 16      | 1 .. 256      | clustered-shading depth slices, exponential in view depth |
+| clamp_distance_rel  | 0.0001  | 1e-07 .. 1.0  | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+<!-- end of parameters -->
+
+Example: `gibench run --scenes rooms --methods visibility_gates,ir_shadowed --res 128x96 --param
+visibility_gates.gate_hops=1,4` (the paper's one hop into a neighbour against the default walk).
 
 Scenes with no empty space at the chosen resolution (nothing enclosed, and no camera or
 positional light in the space around the geometry) are skipped (SkipRow); so are topologies of
 2^20 visibility clusters or more. `extra` of the frame output reports the precomputation time
 (s, and per step), cluster counts (greedy, after merging), gate count and `closed_by_box`.
 
-Stress limit params:voxel_resolution=256: the voxelisation's exact-distance index samples every triangle half a voxel apart (topology.SurfaceIndex): conference (331k triangles, 256 voxels along its longest side) needs 21.5M samples (2.5M at the default 64), and with their k-d tree and the voxel arrays the voxelisation exceeds the stress suite's 6 GiB per-case memory cap (MemoryError allocating 403 MiB); sibenik, cornell_box and the procedural scenes pass at 256
+Stress limit params:voxel_resolution=256: the voxelisation's exact-distance index samples every triangle half a voxel apart (voxels.SurfaceIndex): conference (331k triangles, 256 voxels along its longest side) needs 21.5M samples (2.5M at the default 64), and with their k-d tree and the voxel arrays the voxelisation exceeds the stress suite's 6 GiB per-case memory cap (MemoryError allocating 403 MiB); sibenik, cornell_box and the procedural scenes pass at 256
 """
 from __future__ import annotations
 
@@ -194,7 +179,8 @@ from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
 from bench.gl.vpl import VPL_DEFINES, RsmVplSampler
 
-from .topology import MAX_GATE_EDGES, Topology, TopologyError, build_topology
+from .gates import MAX_GATE_EDGES
+from .topology import Topology, TopologyError, build_topology
 
 SHADERS = Path(__file__).parent / "shaders"
 TILE = 16            # clustered-shading screen tile (pixels); TILE^2 = the local sort's size
@@ -268,7 +254,7 @@ class VisibilityGates(MethodBase):
                                         "disk in open space; 0: no light crosses gates)", 0.0, 8.0),
         "gate_hops": Param(4, "gates a VPL's light may cross on its way to a pixel (1: into a neighbouring "
                               "cluster only, paper Fig. 11)", 1, 16),
-        "use_gates": Param(True, "false: indirect light stays inside visibility clusters"),
+        "use_gates": Param(True, "false: indirect light stays inside visibility clusters (paper VI.B)"),
         "depth_slices": Param(16, "clustered-shading depth slices, exponential in view depth", 1, 256),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
     }

@@ -2,16 +2,21 @@
 determinism and stage timings."""
 import numpy as np
 import pytest
+from scipy.integrate import quad
 
-from bench.model.corpus import load_scene
-from bench.gl import GpuScene, SharedPasses, StageProfiler, check_gl, render_gbuffer
+from bench.gl import GpuScene, SharedPasses, StageProfiler, check_gl, create_context, render_gbuffer
 from bench.gl.passes import Frame
-from bench.run.harness import run_method
+from bench.model.corpus import load_scene
+from bench.model.corpus.procedural import sphere_inside_indirect
+from bench.model.scene import Scene, compute_facts
 from bench.protocol.method import ParamError, SkipRow, resolve_params
-from bench.model.scene import compute_facts
+from bench.run.harness import run_method
+from bench.stress.perturb import t_junction
 from methods.dss.method import SURFEL_BYTES, DeepScreenSpace, patch_records, split_factors
 from methods.manylights.method import ManyLights
+from reference.api import get_reference
 from tests.conftest import make_grid_box, make_open_box
+from tests.methods.test_manylights import small_spot_on_big_triangles, smooth_cube_scene
 
 W, H = 64, 48
 EXACT = {"levels": 1, "interleave": 1, "threshold": 0.0, "blur_radius": 0}  # plain sum over the surfels
@@ -183,7 +188,6 @@ def test_interleaving_is_unshuffled_without_pattern(gl_ctx):
 def test_sphere_inside_matches_analytic_radiance(gl_ctx):
     """Inside a diffuse sphere the one-bounce radiance is rho^2 I / (pi R^2) everywhere: checks
     DSS's radiometry without any other method."""
-    from bench.model.corpus.procedural import sphere_inside_indirect
     scene = load_scene("sphere_inside")
     expected = sphere_inside_indirect()
     exact = run_method(gl_ctx, DeepScreenSpace, scene, "main", W, H, EXACT, frames=1).indirect / expected
@@ -232,8 +236,6 @@ def test_sampling_pattern_follows_the_geometry_not_the_triangle_order(gl_ctx):
     and a T-junction on 32 triangles changes hidden_bounce's image by its own split surfels only
     (keyed by triangle index, every later triangle's surfels drew new sub-buffers: the whole
     interleaving noise changed, mean +-3% at 32 x 24, as much as another seed)."""
-    from bench.model.scene import Scene
-    from bench.stress.perturb import t_junction
     scene = load_scene("hidden_bounce")
     perm = np.random.default_rng(1).permutation(scene.triangle_count)
     shuffled = Scene.build("hidden_bounce_shuffled", scene.vertices, scene.faces[perm], scene.albedo[perm],
@@ -323,9 +325,6 @@ def test_smooth_shaded_surfels_match_mitsuba():
     incident cosine and the emitting side from the shading normal, as Mitsuba: the exact sum over
     dense surfels matches the unshadowed reference (the face-normal cosine is ~17x further off)."""
     pytest.importorskip("mitsuba")
-    from bench.gl import create_context
-    from reference.api import get_reference
-    from tests.methods.test_manylights import smooth_cube_scene
     scene = smooth_cube_scene()
     ref = get_reference(scene, "main", W, H, "indirect_unshadowed", spp_cap=2048)
     m = ref.coverage
@@ -341,8 +340,6 @@ def test_mean_bounce_matches_mitsuba_on_the_corpus(scene_name):
     reference. big_floor is the hard case: its spot lights a disc that ~14 surfels cover, so the
     surfel irradiance quadrature (irradiance_splits) decides the mean there."""
     pytest.importorskip("mitsuba")
-    from bench.gl import create_context
-    from reference.api import get_reference
     scene = load_scene(scene_name)
     ref = get_reference(scene, "main", W, H, "indirect_unshadowed", spp_cap=64)
     m = ref.coverage
@@ -356,8 +353,6 @@ def test_surfel_irradiance_quadrature_converges_to_the_spot_flux(gl_ctx):
     scene): the flux the floor's surfels receive, sum B A / rho, against the spot's exact flux
     2 pi I int falloff sin. The centroid alone (irradiance_splits 0) misjudges the surfels the
     cone's edge crosses; averaging E over 4^k points per surfel converges."""
-    from scipy.integrate import quad
-    from tests.methods.test_manylights import small_spot_on_big_triangles
     scene = small_spot_on_big_triangles()
     spot = scene.lights[0]
     cutoff, beam = np.radians(spot.cutoff_angle_deg), np.radians(spot.beam_width_deg)

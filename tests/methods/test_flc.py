@@ -7,12 +7,17 @@ import dataclasses
 import numpy as np
 import pytest
 
-from bench.run.harness import run_method
+from bench.gl.shaders import GLSL_VERSION, define_block, expand_includes
+from bench.model.corpus import load_scene
+from bench.model.scene import Camera, DirectionalLight, compute_facts
 from bench.protocol.method import ParamError
-from methods.flc.levels import FlcLevels, auto_levels
-from methods.flc.method import SHADERS, ForwardLightCuts, auto_tiling_level
+from bench.run.harness import run_method
+from methods.flc.levels import TOP_LEVEL_BUDGET, FlcLevels, auto_levels, presplit_count
+from methods.flc.method import CPU_MARGIN, SHADERS, TESS_SUB_LEVEL, ForwardLightCuts, auto_tiling_level
+from methods.flc.tessellation import measure_fmax
 from methods.manylights.method import ManyLights
-from tests.conftest import make_grid_box, make_open_box
+from studies.flc_analysis import count_vpls_reaching, energy_beyond_support, level_statistics
+from tests.conftest import grid_quad, make_grid_box, make_open_box, scene_from_parts
 
 CONFIGS = [dict(n_avg=256, mu=4.0, levels=5), dict(n_avg=64, mu=1.4, levels=8), dict(n_avg=1024, mu=2.0, levels=1),
            dict(n_avg=32, mu=5.0, levels=0)]
@@ -101,8 +106,6 @@ def test_measured_vpls_reaching_a_pixel_grow_in_proportion_to_n_avg(levels):
     cut into regular pieces): 4x N_avg gives 3-5x the VPLs whose f^k is non-zero at a receiver,
     with the default level set and with four bounded-reach levels below the unbounded top.
     The printed eq. 18 (with the former defaults N = 5, bounded) does not: its count even falls."""
-    from bench.model.corpus import load_scene
-    from studies.flc_analysis import count_vpls_reaching
     scene = load_scene("cornell_spot")
     total = {n: count_vpls_reaching(scene, {"n_avg": n, "levels": levels}, receivers=96)["total"] for n in (64, 256)}
     assert 3.0 <= total[256] / total[64] <= 5.0, total
@@ -123,7 +126,6 @@ def test_reach_starts_at_d_near_while_the_printed_one_shrinks_with_n_avg():
 def test_automatic_level_set():
     """levels = -1: the fewest levels whose top level holds at most 32 N_avg VPLs in the scene
     (A_scene / S_N), and never more than needed for D_N >= R_scene."""
-    from methods.flc.levels import TOP_LEVEL_BUDGET
     for radius, area, mu, n_avg in ((1.73, 29.0, 4.0, 256), (4.18, 135.5, 4.0, 64), (20.8, 7504.0, 4.0, 128),
                                     (20.8, 7504.0, 1.4, 1024), (1.0, 1e6, 4.0, 256), (1.0, 0.01, 4.0, 256)):
         lv = FlcLevels(scene_radius=radius, n_avg=n_avg, mu=mu, levels=-1, scene_area=area)
@@ -157,7 +159,6 @@ def test_tiling_and_blur_from_the_view_unless_set(gl_ctx):
 
 
 def test_glsl_partition_matches_numpy(gl_ctx):
-    from bench.gl.shaders import GLSL_VERSION, define_block, expand_includes
     lv = FlcLevels(scene_radius=1.3, n_avg=128, mu=2.5, levels=4)
     d = np.concatenate([np.geomspace(lv.d[0] * 1e-3, lv.d[-1] * 3, 997), lv.d * 1.0001]).astype(np.float32)
     body = """
@@ -189,7 +190,6 @@ def test_glsl_partition_matches_numpy(gl_ctx):
 
 
 def test_glsl_level_matches_numpy(gl_ctx):
-    from bench.gl.shaders import GLSL_VERSION, define_block, expand_includes
     lv = FlcLevels(scene_radius=2.0, n_avg=64, mu=3.0, levels=4)
     rng = np.random.default_rng(3)
     u = rng.random(4096).astype(np.float32)
@@ -266,8 +266,6 @@ def test_vpl_irradiance_uses_the_shading_normal(gl_ctx):
     """The VPL's incident cosine is taken against the interpolated shading normal (as Mitsuba and
     `manylights`), the emission side against the face: under a directional light, tilting the
     vertex normals of the emitting floor scales the bounce by cos(tilted) / cos(flat)."""
-    from bench.model.scene import Camera, DirectionalLight
-    from tests.conftest import grid_quad, scene_from_parts
     light = DirectionalLight([0.3, -1.0, 0.2], [3.0, 3.0, 3.0])
     parts = [grid_quad([-1, 0, -1], [0, 0, 2], [2, 0, 0], 6),     # floor, normal +y: the emitter
              grid_quad([-1, 0, -1], [2, 0, 0], [0, 2, 0], 6)]     # back wall, facing +z: lit by the floor only
@@ -291,10 +289,6 @@ def test_divergent_triangles_are_presplit_into_sub_patches(gl_ctx):
     """At n_avg = 4096 the open box's 2 m^2 triangles need more than tessellation level
     TESS_SUB_LEVEL: each is appended as m x m equal sub-patches (m > 1) that this level makes
     regular, and the result still agrees with the exact sum."""
-    from bench.model.scene import compute_facts
-    from methods.flc.levels import presplit_count
-    from methods.flc.method import CPU_MARGIN, TESS_SUB_LEVEL
-    from methods.flc.tessellation import measure_fmax
     scene = make_open_box()
     params = dict(EXACT, n_avg=4096, levels=3, eps_rel=0.05, progressive_frames=16, reach="eq18_printed")
     r = run_method(gl_ctx, ForwardLightCuts, scene, "main", 48, 36, params, frames=1)
@@ -366,7 +360,6 @@ def test_bad_parameter_is_named(gl_ctx):
 
 
 def test_energy_beyond_support_measurement(gl_ctx):
-    from studies.flc_analysis import energy_beyond_support
     scene = make_grid_box(4)
     shares = [energy_beyond_support(gl_ctx, scene, "main", 32, 24, {"mu": mu, "levels": n, "reach": "eq18_printed"})
               ["share_beyond_DN"] for mu, n in ((2.0, 3), (4.0, 5), (16.0, 15))]
@@ -376,7 +369,6 @@ def test_energy_beyond_support_measurement(gl_ctx):
 
 
 def test_level_statistics_is_consistent(gl_ctx):
-    from studies.flc_analysis import energy_beyond_support, level_statistics
     scene = make_grid_box(4)   # every triangle faces the point light: 12 m^2 lit
     params = {"mu": 4.0, "levels": 1, "progressive_frames": 4}
     bounded = level_statistics(gl_ctx, scene, "main", 32, 24, dict(params, last_level_unbounded=False))
@@ -397,7 +389,6 @@ W, H = 64, 48
 
 @pytest.fixture(scope="module")
 def cornell_spot(_session_gl_ctx):
-    from bench.model.corpus import load_scene
     scene = load_scene("cornell_spot")
     ml = run_method(_session_gl_ctx, ManyLights, scene, "main", W, H, {"emission": "flc", "jitter_frames": 64},
                     seed=1, frames=1).indirect
@@ -427,7 +418,6 @@ def test_receiver_normal_encoding_round_trips_every_direction(gl_ctx):
     """The deinterleaved receivers (receivers.glsl) keep every unit normal, the axes included
     (an octahedral code whose "no receiver" marker was the code of -z dropped every wall
     facing -z), to within the 16-bit snorm quantisation."""
-    from bench.gl.shaders import GLSL_VERSION, define_block, expand_includes
     rng = np.random.default_rng(0)
     axes = np.concatenate([np.eye(3), -np.eye(3)])
     random = rng.normal(size=(250, 3))
@@ -458,7 +448,6 @@ def test_compute_selection_gives_the_single_draw_image(gl_ctx):
     """The regular pass's compute selection (ordered, in scene order) draws exactly what the
     paper's single draw of the whole scene would: the same image, bit for bit, with divergent
     triangles (big_floor) and several levels (cornell_spot at levels 2)."""
-    from bench.model.corpus import load_scene
     for name, params in (("big_floor", {}), ("cornell_spot", {"levels": 2})):
         scene = load_scene(name)
         images = [run_method(gl_ctx, ForwardLightCuts, scene, "main", 64, 48, dict(params, regular_selection=mode),

@@ -3,17 +3,22 @@ compared on. Against `manylights` with the FLC lobe and jittered VPLs (the sum F
 for), on corpus scenes where the former defaults failed (hidden_bounce: 0.00 of the bounce,
 cornell_spot: 0.30): the image mean over a few seeds, its spread across seeds, the error
 against "no indirect light" (what `direct` reports), and the N_avg sweep lowering the error.
-Small images and few seeds: the 8-seed figures at the benchmark's resolutions are in the manual.
+Small images and few seeds: the 8-seed figures at the benchmark's resolutions are in methods/flc/NOTES.md.
 """
+import json
+
 import numpy as np
 import pytest
 
-from bench.model.corpus import load_scene
 from bench.gl.passes import render_gbuffer
-from bench.run.harness import run_method
+from bench.model.corpus import load_scene
 from bench.model.scene import compute_facts
+from bench.run.harness import run_method
 from methods.flc.method import ForwardLightCuts
 from methods.manylights.method import ManyLights
+from studies import flc_study as study
+from studies.flc_analysis import refined_scene, single_frame_study
+from tests.conftest import make_open_box
 
 W, H = 64, 48
 SEEDS = range(6)
@@ -61,10 +66,8 @@ def test_n_avg_sweep_lowers_the_error(gl_ctx):
 
 
 def test_single_frame_study_and_refined_reference(gl_ctx):
-    """The manual's measurement helpers: the study's figures are consistent with each other, and
+    """The measurement helpers of studies/flc_analysis.py: the study's figures are consistent with each other, and
     the refined reference scene keeps the surfaces (area, albedo, lights) with smaller triangles."""
-    from studies.flc_analysis import refined_scene, single_frame_study
-    from tests.conftest import make_open_box
     scene = make_open_box()
     fine = refined_scene(scene, 0.5)
     assert fine.areas().sum() == pytest.approx(scene.areas().sum(), rel=1e-9)
@@ -100,10 +103,8 @@ def test_near_field_clamp_removes_the_single_vpl_spikes(gl_ctx):
 
 
 def test_study_command_prints_the_manual_figures(gl_ctx, capsys):
-    """`python -m studies.flc_study` (the manual's tables): one JSON line per view with the
+    """`python -m studies.flc_study` (the tables of methods/flc/NOTES.md): one JSON line per view with the
     manylights ratio, spread and errors, and in sweep mode the error and time per N_avg."""
-    import json
-    from studies import flc_study as study
     study.main(["cornell_spot", "--res", "32x24", "--seeds", "2", "--jitter-frames", "4"])
     row = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert 0.7 <= row["ml_ratio"] <= 1.3

@@ -6,12 +6,15 @@ At the defaults, small images, one frame per seed."""
 import numpy as np
 import pytest
 
+from bench.gl.passes import render_gbuffer
 from bench.model.corpus import load_scene
-from bench.run.harness import run_method
-from bench.protocol.method import resolve_params
 from bench.model.scene import Camera, PointLight, Scene, SpotLight, compute_facts
-from methods.flc.method import ForwardLightCuts
+from bench.protocol.method import resolve_params
+from bench.run.harness import run_method
+from methods.flc.levels import lit_area
+from methods.flc.method import ForwardLightCuts, near_radius
 from methods.manylights.method import ManyLights
+from tests.conftest import make_open_box
 
 W, H = 48, 36
 _CACHE: dict = {}
@@ -113,7 +116,6 @@ def test_big_floor_needs_the_divergent_pass(gl_ctx):
 
 def test_point_light_culls_no_divergent_sub_patch(gl_ctx):
     """A point light reaches every two-sided surface: every sub-patch is drawn (conservative)."""
-    from tests.conftest import make_open_box
     scene = make_open_box()
     assert [light.kind for light in scene.lights] == ["point"]
     r = run_method(gl_ctx, DrawnPatches, scene, "main", 32, 24, {}, frames=1)
@@ -124,7 +126,6 @@ def test_point_light_culls_no_divergent_sub_patch(gl_ctx):
 def test_lit_area_of_a_spot_on_a_plane():
     """The area inside a spot's cone on a 20 m plane under it: pi (h tan theta)^2; and the whole
     surface as soon as a point light is present."""
-    from methods.flc.levels import lit_area
     verts = np.array([[-10, 0, -10], [10, 0, -10], [10, 0, 10], [-10, 0, 10]], float)
     faces = np.array([[0, 2, 1], [0, 3, 2]])
     spot = SpotLight([0.0, 4.0, 0.0], [0.0, 0.0, 0.0], [10.0] * 3, cutoff_angle_deg=15.0)
@@ -141,8 +142,6 @@ def test_lit_area_of_a_spot_on_a_plane():
 def test_dnear_rule_bounds_d_near_by_the_lit_area():
     """D_near = min(dnear_factor R_scene, sqrt(A_lit / (4 pi))) for the default rule: on big_floor
     about 0.53 m instead of 5.7 m; the scene rule keeps the paper's 0.2 R_scene; a bad rule is named."""
-    from methods.flc.levels import lit_area
-    from methods.flc.method import near_radius
     scene, facts = big_floor()
     p = resolve_params(ForwardLightCuts, {})
     lit = lit_area(scene, 0.01)
@@ -181,7 +180,6 @@ def test_quality_ladder():
 def test_view_rule_takes_the_median_view_distance(gl_ctx):
     """dnear_rule = view: D_near = dnear_factor min(R_scene, median eye distance of the visible
     surface); on big_floor the view is far smaller than the 80 m floor's R_scene."""
-    from bench.gl.passes import render_gbuffer
     scene, facts = big_floor()
     r = run_method(gl_ctx, ForwardLightCuts, scene, "main", 64, 48, {"dnear_rule": "view"}, frames=1, facts=facts)
     g = render_gbuffer(gl_ctx, scene, "main", 64, 48)

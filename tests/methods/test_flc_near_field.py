@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from bench.gl.passes import render_gbuffer
-from bench.run.harness import run_method
 from bench.model.scene import Camera, PointLight, Scene, compute_facts
+from bench.run.harness import run_method
 from methods.flc.method import ForwardLightCuts
 
 W, H = 64, 48

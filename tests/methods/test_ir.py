@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler, read_rgb
+from bench.model.corpus import load_scene
+from bench.model.corpus.procedural import sphere_inside_indirect
+from bench.model.scene import Camera, DirectionalLight, Scene, SpotLight
+from bench.protocol.method import ParamError, SkipRow, resolve_params
 from bench.run.harness import run_method
-from bench.protocol.method import ParamError, resolve_params
-from bench.model.scene import Camera, SpotLight
 from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.ir_unshadowed.method import InstantRadiosityUnshadowed
 from methods.manylights.method import ManyLights
@@ -229,8 +231,6 @@ def test_sphere_inside_analytic(gl_ctx):
     """Inside a sphere cos cos / d^2 = 1 / (4 R^2) for any pair of points, so every VPL set
     gives rho^2 I / (pi R^2) (up to the tessellation), and nothing occludes anything: the
     shadowed result must equal the unshadowed one on this curved, concave surface too."""
-    from bench.model.corpus import load_scene
-    from bench.model.corpus.procedural import sphere_inside_indirect
     scene = load_scene("sphere_inside")
     expected = sphere_inside_indirect()
     images = [run_method(gl_ctx, cls, scene, "main", W, H, {"vpl_count": 32}, frames=1).indirect
@@ -269,7 +269,6 @@ def test_rsm_flux_takes_the_shading_normal_cosine(gl_ctx):
     """A flat quad whose vertex normals tilt 40 degrees, under a directional light along its face
     normal: Mitsuba's irradiance is E cos(40) (cosine against the shading normal), so the RSM's
     total reflected flux is rho E cos(40) A, not rho E A."""
-    from bench.model.scene import DirectionalLight, Scene
     tilt = np.radians(40.0)
     v = np.array([[-1, 0, -1], [1, 0, -1], [1, 0, 1], [-1, 0, 1]], float)
     normals = np.tile([np.sin(tilt), np.cos(tilt), 0.0], (4, 1))
@@ -289,7 +288,6 @@ def test_rsm_flux_takes_the_shading_normal_cosine(gl_ctx):
 
 
 def test_shadowed_skips_a_row_over_its_triangle_draw_budget(gl_ctx):
-    from bench.protocol.method import SkipRow
     # 6 triangles x 256 VPLs = 1536 draws: over a budget of 1000, one line with the figures
     with pytest.raises(SkipRow, match="1,536 triangle draws"):
         run_method(gl_ctx, InstantRadiosityShadowed, make_open_box(), "main", 16, 16,

@@ -2,10 +2,15 @@
 import numpy as np
 import pytest
 
-from bench.gl import render_gbuffer
+from bench.gl import create_context, render_gbuffer
+from bench.model.corpus import load_scene
+from bench.model.scene import Camera, PointLight, Scene, SpotLight
+from bench.protocol.method import SkipRow
 from bench.run.harness import run_method
+from bench.stress.perturb import sliver
 from methods.manylights.method import ManyLights
-from tests.conftest import make_grid_box, make_open_box
+from reference.api import get_reference
+from tests.conftest import grid_quad, make_grid_box, make_open_box, scene_from_parts
 
 
 def segment_blocked(scene, y, light, eps=1e-4):
@@ -91,7 +96,6 @@ def test_jitter_converges_and_is_deterministic(gl_ctx):
 
 
 def test_skips_scene_over_budget(gl_ctx):
-    from bench.protocol.method import SkipRow
     with pytest.raises(SkipRow, match="triangles"):
         run_method(gl_ctx, ManyLights, make_open_box(), "main", 16, 16, {"max_triangles": 2}, frames=1)
 
@@ -112,8 +116,6 @@ def test_more_vpls_than_one_shader_loop_may_run(gl_ctx):
 def smooth_cube_scene():
     """A cube of 8 shared vertices (area-weighted vertex normals: smooth shading that tilts up to
     55 degrees from the faces) on a flat floor under a point light."""
-    from bench.model.scene import Camera, PointLight, Scene
-    from tests.conftest import grid_quad
     c = np.array([[x, y, z] for x in (-0.5, 0.5) for y in (0.2, 1.2) for z in (-0.5, 0.5)], float)
     f = np.array([[0, 1, 3], [0, 3, 2], [4, 6, 7], [4, 7, 5], [0, 4, 5], [0, 5, 1],
                   [2, 3, 7], [2, 7, 6], [0, 2, 6], [0, 6, 4], [1, 5, 7], [1, 7, 3]])
@@ -146,8 +148,6 @@ def test_smooth_shaded_emitters_match_mitsuba():
     """Jittered VPLs on the smooth cube against Mitsuba's unshadowed bounce, within the noise of
     both (the face-normal cosine, which ignores the shading frame, is ~8x the noise away)."""
     pytest.importorskip("mitsuba")
-    from reference.api import get_reference
-    from bench.gl import create_context
     ctx = create_context()
     scene = smooth_cube_scene()
     w, h = 64, 48
@@ -165,8 +165,6 @@ def test_smooth_shaded_emitters_match_mitsuba():
 def small_spot_on_big_triangles():
     """big_floor in small: a 4 x 4 m floor of 2 triangles whose centroids both lie outside the
     disc a narrow spot lights, and an unlit box beside the disc receiving its bounce."""
-    from bench.model.scene import Camera, SpotLight
-    from tests.conftest import grid_quad, scene_from_parts
     q = lambda o, u, v: grid_quad(o, u, v, 1)  # noqa: E731
     parts = [q([-2, 0, -2], [0, 0, 4], [4, 0, 0]), q([0.1, 0, 0.7], [0, 0.6, 0], [0, 0, 0.6]),
              q([-0.5, 0, 0.7], [0, 0, 0.6], [0, 0.6, 0]), q([-0.5, 0, 1.3], [0.6, 0, 0], [0, 0.6, 0]),
@@ -181,8 +179,6 @@ def test_centroid_vpls_miss_a_small_spot_and_jitter_converges():
     integral: here both floor centroids are unlit and the bounce is 0, while jittered VPLs
     (jitter_frames > 1) converge to Mitsuba's unshadowed reference."""
     pytest.importorskip("mitsuba")
-    from reference.api import get_reference
-    from bench.gl import create_context
     ctx = create_context()
     scene = small_spot_on_big_triangles()
     w, h = 64, 48
@@ -198,8 +194,6 @@ def test_centroid_vpls_miss_a_small_spot_and_jitter_converges():
 def test_float32_slivers_emit_nothing_instead_of_nan(gl_ctx):
     # 1e-6-aspect slivers on the rooms' surfaces: their float32 cross product can vanish; the
     # normalised normal then made every pixel they reach NaN (the stress suite's degenerate row)
-    from bench.model.corpus import load_scene
-    from bench.stress.perturb import sliver
     base = load_scene("rooms")
     scene = sliver(base, count=32, seed=0)
     out = run_method(gl_ctx, ManyLights, scene, "main", 32, 24, {}, frames=1)

@@ -470,7 +470,7 @@ def test_folded_chart_is_split(gl_ctx):
 def test_stress_limits_reach_the_suite():
     """The manual's "Stress limit" lines (module docstring) are the class's stress_limits, which
     `gibench stress` reads: the documented parameter extremes match, the others do not."""
-    from bench.stress.suite import documented_limits, match_limit
+    from bench.stress.limits import documented_limits, match_limit
     limits = documented_limits(TextureSpacePBGI)
     assert match_limit(limits, "params:bounces=8") and match_limit(limits, "params:refine_ratio=0")
     assert match_limit(limits, "params:refine_ratio=1") is None and match_limit(limits, "scale=1e-02") is None

@@ -23,9 +23,9 @@ import numpy as np
 import pytest
 
 from bench.model.corpus import load_scene
-from bench.run.harness import run_method
-from bench.protocol.registry import MethodLoadError, load_method
 from bench.model.scene import Scene, SpotLight, compute_facts
+from bench.protocol.registry import MethodLoadError, load_method
+from bench.run.harness import run_method
 from methods.manylights.method import ManyLights
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
 

@@ -9,19 +9,24 @@ scene `lit_wall_corner` (the mirror case: lit wall, unlit floor) is checked agai
 unshadowed one-bounce reference at the default parameters.
 """
 
+import sys
+from pathlib import Path
+
 import moderngl
 import numpy as np
 import pytest
 
-from bench.model.corpus import load_scene
 from bench.gl import load_program, render_direct, render_gbuffer
 from bench.gl.context import park
-from bench.run.harness import run_method
-from bench.protocol.method import ParamError, resolve_params
+from bench.model.corpus import load_scene
 from bench.model.scene import Camera, DirectionalLight, PointLight, Scene, compute_facts
+from bench.protocol.method import ParamError, resolve_params
+from bench.protocol.registry import load_method
+from bench.run.harness import run_method
 from methods.manylights.method import ManyLights
 from methods.ssdo.method import RADIUS_VIEW_REL, SHADERS, SSDO_DEFINES
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
+from reference.api import get_reference
 from studies.ssdo_screen_bound import screen_sender_bounce
 from tests.conftest import grid_quad, make_grid_box, scene_from_parts
 
@@ -123,10 +128,6 @@ def test_parameters_are_range_checked():
 
 
 def test_registered_and_documented():
-    import sys
-    from pathlib import Path
-
-    from bench.protocol.registry import load_method
     assert load_method("ssdo") is Ssdo
     module = sys.modules[Ssdo.__module__]      # the module docstring is the manual
     readme = (Path(module.__file__).parent / "README.md").read_text()
@@ -360,7 +361,6 @@ def test_lit_wall_corner_against_mitsuba(gl_ctx):
     is the whole bounce, SSDO's image mean is within [0.85, 1.15] of the reference, and it
     recovers at least half of the reference's bounce on the floor within 0.5 m of the corner."""
     pytest.importorskip("mitsuba")
-    from reference.api import get_reference
     scene = load_scene("lit_wall_corner")
     w, h = 128, 96
     ref = get_reference(scene, "main", w, h, "indirect_unshadowed", spp_cap=64).mean.astype(np.float64)

@@ -1,12 +1,12 @@
 """SSDO's sender patch area (issue #11): each blocked sample stands for the sender area 1 / (N p(y))
 of its column behind the sender (methods/ssdo/method.py), not the paper's constant
 A_s = pi r_max^2 / N. The estimate then converges to the exact bounce from on-screen senders
-(`screen_bound.py`), where A_s over-weighted senders near x and under-weighted compact senders
+(`studies/ssdo_screen_bound.py`), where A_s over-weighted senders near x and under-weighted compact senders
 seen at grazing angles (big_floor: 0.25 of the reference against a bound of 0.76)."""
 import numpy as np
 
-from bench.model.corpus import load_scene
 from bench.gl import render_gbuffer
+from bench.model.corpus import load_scene
 from bench.run.harness import run_method
 from methods.ssdo.method import ScreenSpaceDirectionalOcclusion as Ssdo
 from studies.ssdo_screen_bound import screen_sender_bounce

@@ -8,7 +8,9 @@ from bench.run.harness import run_method
 from bench.protocol.method import ParamError, resolve_params
 from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.ir_unshadowed.method import InstantRadiosityUnshadowed
-from methods.val_clustered.method import LIFT_SCALE, NEAR_SCALE, ClusteredVirtualAreaLights
+from methods.val_clustered.clustering import LIFT_SCALE
+from methods.val_clustered.method import ClusteredVirtualAreaLights
+from methods.val_clustered.shadow_maps import NEAR_SCALE
 from tests.conftest import make_grid_box, make_open_box
 from tests.methods.test_ir import make_occluder_scene
 

@@ -7,7 +7,9 @@ import numpy as np
 
 from bench.gl import Frame, GpuScene, SharedPasses, StageProfiler
 from bench.protocol.method import resolve_params
-from methods.val_clustered.method import LIFT_SCALE, NEAR_SCALE, ClusteredVirtualAreaLights
+from methods.val_clustered.clustering import LIFT_SCALE
+from methods.val_clustered.method import ClusteredVirtualAreaLights
+from methods.val_clustered.shadow_maps import NEAR_SCALE
 from tests.conftest import make_grid_box
 from tests.methods.test_val_clustered import first_hits, orthonormal_basis
 
@@ -94,11 +96,11 @@ def test_maps_are_deterministic(gl_ctx):
 def test_chunked_map_pass_gives_the_same_maps(gl_ctx, monkeypatch):
     """Scenes whose (VAL, triangle) pairs exceed MAX_MAP_PAIRS are processed in chunks of
     triangles (bounded pair buffer): chunks of 100 triangles give the same maps as one chunk."""
-    import methods.val_clustered.method as val_method
+    import methods.val_clustered.shadow_maps as val_maps
     scene = make_grid_box(12)
     params = {"cluster_count": 8, "vpl_count": 256}
     whole = map_frame(gl_ctx, scene, params)
-    monkeypatch.setattr(val_method, "MAX_MAP_PAIRS", 8 * 100)
+    monkeypatch.setattr(val_maps, "MAX_MAP_PAIRS", 8 * 100)
     chunked = map_frame(gl_ctx, scene, params)
     assert np.isfinite(whole["atlas"][whole["atlas"] < 1e37]).all() and (whole["atlas"] < 1e37).mean() > 0.2
     assert np.array_equal(whole["atlas"], chunked["atlas"])

@@ -15,8 +15,9 @@ from bench.protocol.method import ParamError, SkipRow, resolve_params
 from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.ir_unshadowed.method import InstantRadiosityUnshadowed
 from methods.visibility_gates.method import VisibilityGates, scene_topology
-from methods.visibility_gates.topology import (KIND_COVERAGE, KIND_TOPOLOGY, KIND_UNCLASSIFIED, MAX_GATE_EDGES,
-                                               SurfaceIndex, cluster, merge_wide_gates, prune_spurs, voxelize)
+from methods.visibility_gates.gates import MAX_GATE_EDGES, merge_wide_gates
+from methods.visibility_gates.skeleton import KIND_COVERAGE, KIND_TOPOLOGY, KIND_UNCLASSIFIED, cluster, prune_spurs
+from methods.visibility_gates.voxels import SurfaceIndex, voxelize
 from tests.conftest import make_open_box
 
 W, H = 64, 48

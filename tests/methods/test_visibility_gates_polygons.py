@@ -9,7 +9,8 @@ import trimesh
 from bench.model.corpus import load_scene
 from bench.protocol.method import resolve_params
 from methods.visibility_gates.method import VisibilityGates
-from methods.visibility_gates.topology import SurfaceIndex, _halfplane_polygon, _polygon_area, opening_polygon
+from methods.visibility_gates.gates import _halfplane_polygon, _polygon_area, opening_polygon
+from methods.visibility_gates.voxels import SurfaceIndex
 from tests.methods.test_visibility_gates import default_topology, render_frame, vpl_sum
 
 

@@ -154,7 +154,7 @@ def plan_lit_wall_corner(cell: float = 0.25, irradiance: float = 3.0) -> Plan:
     faces it (irradiance `irradiance`), the floor is parallel to it and gets exactly none, so
     every bit of light on the floor is the wall's bounce (and the wall gets none). The camera
     looks down at the corner with the lit wall on screen: 99.5% of the unshadowed one-bounce
-    light in view comes from on-screen senders (128x96, `methods/ssdo/screen_bound.py`).
+    light in view comes from on-screen senders (128x96, `studies/ssdo_screen_bound.py`).
     """
     _require(0.05 <= cell <= 4.0, "lit_wall_corner", f"option cell must be in [0.05, 4] m, got {cell}")
     _require(irradiance >= 0, "lit_wall_corner", f"option irradiance must be >= 0, got {irradiance}")

@@ -18,13 +18,13 @@ import numpy as np
 from bench.model.corpus.geometry import quad
 from bench.model.corpus.procedural import Plan
 from bench.model.scene import Camera, DirectionalLight, PointLight, SceneError, SpotLight
-from bench.model.scenefile import read_mesh_npz, read_npz_meta, transform_matrix, transformed
+from bench.model.meshfile import read_mesh_npz, read_npz_meta, transform_matrix, transformed
 
 
 def scenes_dir() -> Path:
     """The `scenes/` folder of the checkout, or $GIBENCH_SCENES_DIR."""
     env = os.environ.get("GIBENCH_SCENES_DIR")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "scenes"
+    return Path(env) if env else Path(__file__).resolve().parents[3] / "scenes"
 
 
 def vertical_fov(horizontal_deg: float, aspect: float = 16 / 9) -> float:

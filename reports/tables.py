@@ -1,0 +1,182 @@
+"""The data of the report's tables, as plain lists and dicts for the section templates
+(templates/sections/): the time-and-error overview, the rows not rendered, per-stage timing,
+equal-error speed-ups, Pareto fronts, cost vs triangles, scene facts, reference noise floors,
+the metric docs and the run's record."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bench.analysis.curves import SPEEDUP_COMPONENTS
+from bench.analysis.metrics import METRICS
+from bench.protocol.vocabulary import BIAS_METRICS, ERROR_COMPONENTS, METRIC_NAMES, REFERENCE_COMPONENTS, SHARED_STAGES, Status
+
+from .render import fmt
+
+# the tables list the direct component last: for most methods it is the same shared direct pass
+TABLE_COMPONENTS = tuple(c for c in ERROR_COMPONENTS if c != "direct") + ("direct",)
+METRIC_DOCS = dict(METRICS, mean_ratio="image mean / reference mean on covered pixels: 1 is unbiased in the mean "
+                                       "(best: closest to 1)")
+DEFAULT_METRICS = ("relmse.indirect", "mse.indirect", "mse.combined")
+
+
+def _finite_min(values) -> float:
+    a = np.asarray([v for v in values if v is not None], dtype=np.float64)
+    a = a[np.isfinite(a)]
+    return float(a.min()) if a.size else float("nan")
+
+
+def metric_columns(table: pd.DataFrame) -> list[str]:
+    """The error columns of `table` that hold a number, by component then metric."""
+    cols = []
+    for comp in TABLE_COMPONENTS:
+        for metric in METRIC_NAMES:
+            col = f"{metric}.{comp}"
+            if col in table.columns and pd.to_numeric(table[col], errors="coerce").notna().any():
+                cols.append(col)
+    return cols
+
+
+def _badness(metric: str | None):
+    """How far a value of `metric` is from the best: the value, or |log| of a bias ratio (best at 1)."""
+    if metric and metric.split(".", 1)[0] in BIAS_METRICS:
+        return lambda v: abs(np.log(v)) if v is not None and np.isfinite(v) and v > 0 else None
+    return lambda v: v
+
+
+def overview(table: pd.DataFrame, views: list[tuple[str, str]], facts: dict | None) -> dict:
+    """Method x view tables of time and error, one per error column (the page shows one, chosen by a
+    select), views headed with their triangle count like the FLC paper's Table 2."""
+    metric_cols = metric_columns(table) if views else []
+    labels = list(dict.fromkeys(table["label"])) if views else []
+    lookup = {(r["label"], r["scene"], r["view"]): r for r in table.to_dict("records")}
+    multi_view = len({s for s, _ in views}) < len(views)
+    facts = facts or {}
+    heads = []
+    for s, v in views:
+        tris = facts.get(s, {}).get("triangle_count")
+        heads.append((f"{s}/{v}" if multi_view else s) + (f" ({fmt(tris)} tri.)" if tris is not None else ""))
+
+    def one(metric: str | None) -> dict:
+        best_t = {sv: _finite_min(lookup.get((l, *sv), {}).get("frame_ms") for l in labels) for sv in views}
+        badness = _badness(metric)
+        best_e = {sv: _finite_min(badness(lookup.get((l, *sv), {}).get(metric)) for l in labels) for sv in views} \
+            if metric else {}
+        rows = []
+        for label in labels:
+            cells = []
+            for sv in views:
+                rec = lookup.get((label, *sv), {})
+                t = rec.get("frame_ms")
+                e = rec.get(metric) if metric else None
+                cells.append({"time": t, "time_best": t is not None and t == best_t[sv], "error": e,
+                              "error_best": bool(metric) and e is not None and badness(e) == best_e[sv]})
+            rows.append({"label": label, "cells": cells})
+        return {"metric": metric, "rows": rows}
+
+    tables = ([one(m) for m in metric_cols] or [one(None)]) if views else []
+    default = next((m for m in DEFAULT_METRICS if m in metric_cols), metric_cols[0] if metric_cols else None)
+    return {"heads": heads, "metrics": metric_cols, "default_metric": default, "tables": tables}
+
+
+def not_rendered(df: pd.DataFrame) -> list[dict]:
+    """The run's rows without images (skipped or failed), with their status."""
+    if "status" not in df.columns:
+        return []
+    bad = df[~df["status"].map(Status.has_images)]
+    return [{"view": f"{r['scene']}/{r['view']}", "method": r["method"], "status": r["status"]}
+            for r in bad.to_dict("records")]
+
+
+def stage_order(rows: pd.DataFrame) -> list[str]:
+    """Stages in execution order: the shared passes first, then each method's in first-seen order."""
+    seen: list[str] = []
+    for raw in rows.get("samples.stage_ms", pd.Series(dtype=object)):
+        try:
+            names = list(json.loads(raw)) if isinstance(raw, str) else []
+        except json.JSONDecodeError:
+            names = []
+        seen += [n for n in names if n not in seen]
+    seen += [c.split(".", 1)[1] for c in rows.columns if c.startswith("stage_ms.") and c.split(".", 1)[1] not in seen
+             and pd.to_numeric(rows[c], errors="coerce").notna().any()]
+    shared = [s for s in SHARED_STAGES if s in seen]
+    return shared + [s for s in seen if s not in shared]
+
+
+def stage_rows(rows: pd.DataFrame, stages: list[str]) -> list[dict]:
+    """Per row: its label, each stage's median ms (or skipped), the GPU total and the frame time with its IQR."""
+    out = []
+    for rec in rows.to_dict("records"):
+        try:
+            skipped = set(json.loads(rec.get("skipped_stages") or "[]"))
+        except (TypeError, json.JSONDecodeError):
+            skipped = set()
+        out.append({"label": rec["label"],
+                    "stages": [{"skipped": s in skipped, "ms": rec.get(f"stage_ms.{s}")} for s in stages],
+                    "gpu_ms": rec.get("gpu_ms"), "frame_ms": rec.get("frame_ms"), "frame_ms_iqr": rec.get("frame_ms_iqr")})
+    return out
+
+
+def speedup(rows: pd.DataFrame) -> dict | None:
+    """Equal-error speed-up over the Mitsuba path tracer per component of one view; None without any."""
+    comps = [c for c in SPEEDUP_COMPONENTS if f"mse.{c}" in rows.columns
+             and pd.to_numeric(rows[f"speedup.{c}"], errors="coerce").notna().any()]
+    if not comps:
+        return None
+    body = [{"label": rec["label"], "frame_ms": rec.get("frame_ms"),
+             "components": [{"mse": rec.get(f"mse.{c}"), "mitsuba_ms": rec.get(f"mitsuba_ms.{c}"),
+                             "speedup": rec.get(f"speedup.{c}"),
+                             "lower_bound": bool(rec.get(f"speedup_lower_bound.{c}")),
+                             "extrapolated": bool(rec.get(f"speedup_extrapolated.{c}"))} for c in comps]}
+            for rec in rows.to_dict("records")]
+    return {"components": comps, "rows": body}
+
+
+def pareto_rows(front: pd.DataFrame) -> list[dict]:
+    return [{"label": r["label"], "frame_ms": r["frame_ms"], "mse": r["mse.indirect"]} for r in front.to_dict("records")]
+
+
+def scaling_rows(fits: dict) -> list[dict]:
+    """Per method: the fitted slope, the largest scene's triangle count and its frame time."""
+    return [{"method": m, "slope": slope, "triangles": int(n.max()), "frame_ms": float(t.max())}
+            for m, (n, t, slope) in fits.items()]
+
+
+def scene_facts(manifest: dict) -> list[dict]:
+    facts, purposes = manifest.get("scene_facts", {}), manifest.get("scene_purposes", {})
+    keys = ("triangle_count", "vertex_count", "total_area_m2", "area_median_m2", "scene_radius", "closed",
+            "divergent_count")
+    return [dict({k: f.get(k) for k in keys}, name=name, purpose=purposes.get(name, "")) for name, f in facts.items()]
+
+
+def noise_floors(table: pd.DataFrame) -> dict | None:
+    """Per view, each reference component's noise floor MSE and spp; None without references."""
+    cols = [c for c in REFERENCE_COMPONENTS if f"reference_noise_floor.{c}" in table.columns]
+    if not cols:
+        return None
+    rows = []
+    for (scene, view), g in table.groupby(["scene", "view"], sort=False):
+        rec = g.iloc[0]
+        rows.append({"view": f"{scene}/{view}", "cells": [{"floor": rec.get(f"reference_noise_floor.{c}"),
+                                                           "spp": rec.get(f"reference_spp.{c}")} for c in cols]})
+    return {"header": ["view"] + [h for c in cols for h in (f"noise floor MSE ({c})", "spp")], "rows": rows}
+
+
+def metric_docs(metric_cols: list[str]) -> list[tuple[str, str]]:
+    used = {c.split(".", 1)[0] for c in metric_cols}
+    return [(m, METRIC_DOCS.get(m, "description unavailable")) for m in METRIC_NAMES if m in METRICS or m in used]
+
+
+def run_info(manifest: dict, run_dir: Path) -> dict:
+    """The run's folder, dates, phases, machine, package versions and arguments, as (key, value) pairs."""
+    general = {"run folder": run_dir.resolve(), "created": manifest.get("created"),
+               "git commit": manifest.get("git_commit"), "results schema": manifest.get("schema_version")}
+    phases = {k: f"{float(v):.1f} s" for k, v in (manifest.get("phases_s") or {}).items()}
+    if phases and manifest.get("harness_overhead") is not None:
+        phases["harness overhead"] = f"{100 * float(manifest['harness_overhead']):.1f}% of the rendered rows' time"
+    return {"general": list(general.items()), "phases": list(phases.items()),
+            "machine": list(manifest.get("machine", {}).items()), "versions": list(manifest.get("versions", {}).items()),
+            "arguments": json.dumps(manifest.get("arguments", {}), indent=2, default=str)}
