@@ -8,17 +8,23 @@ Layout of the output folder (default `<run>/report/`):
                         (browsers block fetch() of local files)
   data/*.csv            the between-method and paper-reproduction tables
   plots/*.svg           matplotlib figures
+  report.json           when the report was built, from which run, in how many seconds (the
+                        report's own time lives here: the run folder it reads is never written)
 
 The page is rendered from templates/index.html and one template per section
 (templates/sections/); this module reads the run folder and hands the templates plain data. The
 viewer tone-maps in JS (exposure in stops, sRGB), so the page keeps the linear data (viewdata.py).
 Labels and parameter defaults come from the run's manifest (what each method declared when it
 ran), never from today's method classes. The report reads result files only; it never renders.
+A run that did not finish (bench.protocol.results.run_progress: interrupted, or still running)
+is marked in the page's header: "incomplete: N of M rows".
 """
 from __future__ import annotations
 
+import datetime as _dt
 import json
 import shutil
+import time
 from importlib import resources
 from pathlib import Path
 
@@ -28,7 +34,7 @@ import pandas as pd
 
 from bench.protocol import results as store
 from bench.analysis.curves import declared_defaults, load_curves, pareto_table, sweep_table
-from bench.protocol.results import load_manifest
+from bench.protocol.results import load_manifest, run_progress
 
 from . import comparisons, plots, tables
 from .render import write_page
@@ -93,11 +99,13 @@ def _scaling(table: pd.DataFrame, manifest: dict, out_dir: Path) -> dict | None:
 
 def build_report(run_dir, out_dir=None) -> Path:
     """Build the report of `run_dir` into `out_dir` (default `<run_dir>/report`); returns index.html."""
+    t0 = time.perf_counter()
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise FileNotFoundError(f"run folder not found: {run_dir}")
     if (run_dir / STRESS_TABLE).is_file() and not (run_dir / "results.csv").is_file():
         return build_stress_report(run_dir, out_dir)  # a `gibench stress` folder
+    progress = run_progress(run_dir)   # read before the table: a run still writing adds rows, never removes them
     df = store.load_results(run_dir)
     manifest = load_manifest(run_dir)
     curves = load_curves(run_dir)
@@ -120,7 +128,8 @@ def build_report(run_dir, out_dir=None) -> Path:
         "title": f"gibench report: {run_dir.resolve().name}",
         "subtitle": {"rows": len(table), "views": len(views), "methods": len(set(table["method"])) if len(table) else 0,
                      "renderer": machine.get("gl_renderer", "?"), "cpu": machine.get("cpu", "?"),
-                     "commit": str(manifest.get("git_commit") or "?")[:12]},
+                     "commit": str(manifest.get("git_commit") or "?")[:12],
+                     "incomplete": progress.describe()},
         "toc": [(a, t) for a, t in TOC if (metric_docs or a != "metrics") and (scaling or a != "scaling")],
         "overview": overview, "not_rendered": tables.not_rendered(df),
         "scene_views": scene_views, "timing": timing, "speedup": speedups, "scaling": scaling,
@@ -130,4 +139,8 @@ def build_report(run_dir, out_dir=None) -> Path:
         "metric_docs": metric_docs, "run": tables.run_info(manifest, run_dir),
         "data_scripts": [f"data/view_{i}.js" for i in range(len(views))],
     }
-    return write_page(out_dir / "index.html", "index.html", **context)
+    index = write_page(out_dir / "index.html", "index.html", **context)
+    store.atomic_write_text(out_dir / "report.json", json.dumps(
+        {"run": str(run_dir.resolve()), "built": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+         "seconds": round(time.perf_counter() - t0, 3), "incomplete": progress.describe() or None}, indent=1))
+    return index

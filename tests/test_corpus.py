@@ -149,3 +149,11 @@ def test_missing_archives_are_reported(monkeypatch, tmp_path):
     monkeypatch.setenv("GIBENCH_SCENES_DIR", str(tmp_path))
     with pytest.raises(SceneError, match="mesh.npz' not found \\(run scripts/import_real_scenes.py\\)"):
         load_scene("teapot")
+
+
+@pytest.mark.parametrize("spec, option", [("cornell_tiled:n=NaN", "n"), ("cornell_tiled:n=1e400", "n"),
+                                          ("rooms:intensity=NaN", "intensity"), ("big_floor:intensity=1e400", "intensity")])
+def test_non_finite_options_name_the_option(spec, option):
+    """NaN / Inf (JSON's NaN, 1e400) ended in a bare ValueError/OverflowError or a light's error (issue #27)."""
+    with pytest.raises(SceneError, match=f"option {option}=.* must be a finite number"):
+        load_scene(spec)

@@ -413,3 +413,55 @@ def test_folder_with_two_resolutions_matches_each(tmp_path):
     assert res.compared == 4 and not res.not_comparable and not any("duplicate" in n for n in res.notes)
     assert [(f.row, f.check) for f in res.regressions] == [("box/main/manylights", "mse.indirect")]
     assert res.regressions[0].baseline == pytest.approx(0.02)
+
+
+# ---------------------------------------------------------------------------- issue #27: runs, tables
+def _hand_edit(folder, edit):
+    """The results of `folder` as a hand-edited CSV: parquet and checksums removed, `edit` applied."""
+    import pandas as pd
+    (folder / "results.parquet").unlink()
+    (folder / "results.checksums.json").unlink()
+    df = pd.read_csv(folder / "results.csv")
+    edit(df).to_csv(folder / "results.csv", index=False)
+    return folder
+
+
+def test_one_run_listed_twice_is_bad_input(tmp_path, capsys):
+    """A,A,A is one run, not three repetitions (it gave p = 0 and FAIL); so is a copied folder."""
+    from bench.cli import main
+    rows = two_rows()
+    a = write_run(tmp_path / "a", rows)
+    b = write_runs(tmp_path / "b", rows, factor=1.5)
+    assert main(["gate", f"{a},{a},{a}", b]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and f"the baseline lists one run twice: {a} and {a} are the same run" in err
+    real = tmp_path / "real"
+    write_run(real, rows)
+    manifest = json.loads((real / "manifest.json").read_text())
+    (real / "manifest.json").write_text(json.dumps(dict(manifest, run_id="0f" * 16, created="2026-01-01T00:00:00")))
+    shutil.copytree(real, tmp_path / "copy")
+    with pytest.raises(ValueError, match="the candidate lists one run twice: .*run id 0f0f"):
+        compare_runs(a, f"{real},{tmp_path / 'copy'}")
+    # a copy whose rows differ (another measurement) is another run; one folder on both sides is a self-check
+    assert compare_runs(b, b).exit_code == 0
+
+
+def test_hand_edited_tables(tmp_path, capsys):
+    """A non-numeric frame_ms is one line naming the cell (exit 2); a dropped method_version column is
+    named in the notes and the verdict instead of a silent pass."""
+    from bench.cli import main
+    rows = two_rows()
+    a = write_run(tmp_path / "a", rows)
+    no_versions = _hand_edit(write_run(tmp_path / "nv", rows), lambda df: df.drop(columns=["method_version"]))
+    res = compare_runs(a, no_versions)
+    assert res.exit_code == 0 and "not checked: method versions of 2 row(s)" in res.verdict()
+    assert any("method versions of 2 compared row(s) could not be checked" in n for n in res.notes)
+
+    def text_in_frame_ms(df):
+        df["frame_ms"] = df["frame_ms"].astype(object)
+        df.loc[1, "frame_ms"] = "fast"
+        return df
+    bad = _hand_edit(write_run(tmp_path / "bad", rows), text_in_frame_ms)
+    assert main(["gate", str(a), str(bad)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "column frame_ms holds 'fast' in row 3" in err

@@ -264,3 +264,21 @@ def test_fmt_keeps_the_report_number_format():
     assert fmt(0.000123456) == "0.000123" and fmt(999.5) == "1e+03" and fmt(1.5, 2) == "1.5"
     assert fmt(1234) == "1,234" and fmt(np.int64(7)) == "7" and fmt(True) == "yes" and fmt(np.bool_(False)) == "no"
     assert fmt(float("inf")) == "\u2014" and fmt("n/a") == "n/a"
+
+
+def test_hand_edited_table_is_one_line_or_a_report(tiny_run, tmp_path, capsys):
+    """Issue #27: a non-numeric frame_ms, parquet and checksums removed, ended in two tracebacks."""
+    from bench.cli import main
+    for name, edit, code in (("text", lambda df: df.assign(frame_ms=["fast"] + list(df["frame_ms"][1:])), 2),
+                             ("params", lambda df: df.assign(params=["{bad"] + list(df["params"][1:])), 2),
+                             ("no_version", lambda df: df.drop(columns=["method_version"]), 0)):
+        run_dir = tmp_path / name
+        shutil.copytree(tiny_run, run_dir)
+        shutil.rmtree(run_dir / "report", ignore_errors=True)
+        (run_dir / "results.parquet").unlink()
+        (run_dir / "results.checksums.json").unlink()
+        edit(pd.read_csv(run_dir / "results.csv")).to_csv(run_dir / "results.csv", index=False)
+        assert main(["report", str(run_dir), "--out", str(tmp_path / f"rep_{name}")]) == code, name
+        err = capsys.readouterr().err.strip()
+        if code:
+            assert "\n" not in err and "Traceback" not in err and "results.csv: column" in err, err

@@ -224,9 +224,11 @@ def test_corrupt_results_tables_are_detected(tmp_path):
     good.iloc[:1].to_parquet(d / "results.parquet", index=False)
     with pytest.raises(ResultsError, match="disagree"):
         load_results(d)
-    # and a run into that folder says so instead of dropping the rows
+    # and a run into that folder says so instead of dropping the rows, before writing anything (#27)
+    before = {f.name: f.read_bytes() for f in d.iterdir() if f.is_file()}
     with pytest.raises(ResultsError):
         run(cfg(tmp_path, out="t"), log=lambda m: None)
+    assert {f.name: f.read_bytes() for f in d.iterdir() if f.is_file()} == before
 
 
 def test_ladders_expand_to_rungs_and_param_overrides_them(tmp_path, monkeypatch):
@@ -290,3 +292,13 @@ def test_shadow_resolution_follows_the_view():
     assert auto_shadow_resolution(320, 180) == 512 and auto_shadow_resolution(1280, 720) == 2048
     assert auto_shadow_resolution(64, 48) == 256 and auto_shadow_resolution(513, 10) == 1024
     assert effective_shadow_resolution(RunConfig(scenes=["x"], methods=["m"], shadow_resolution=128)) == 128
+
+
+def test_run_config_refuses_names_that_leave_the_run_folder():
+    """Methods and views become folders of the run: a RunConfig built in code is checked as the CLI checks."""
+    with pytest.raises(ValueError, match="method name"):
+        RunConfig(scenes=["cornell_spot"], methods=["evil/../../x"]).validate()
+    with pytest.raises(ValueError, match="view name"):
+        RunConfig(scenes=["cornell_spot"], methods=["direct"], views=["../up"]).validate()
+    with pytest.raises(ValueError, match="reference spp cap"):
+        RunConfig(scenes=["cornell_spot"], methods=["direct"], reference_spp_cap=0).validate()

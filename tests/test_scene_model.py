@@ -83,3 +83,20 @@ def test_unsafe_names_are_rejected(name):
 def test_corpus_style_names_are_safe():
     for name in ("cornell_spot", "rooms-n3", "big_floor-size2.5-height-0.5", "open_box"):
         assert build(name=name).name == name
+
+
+@pytest.mark.parametrize("camera", ["a/../../../escaped", "../x", "a\\b", ".hidden", "", "v@1", 7])
+def test_unsafe_camera_names_are_rejected(camera):
+    """A camera name becomes a folder images/<scene>/<view>/ (issue #27): the scene name's check covers it."""
+    with pytest.raises(SceneError, match=f"scene 't': camera name .* is not allowed") as info:
+        build(cameras={camera: Camera([2, 2, 2], [0, 0, 0])})
+    assert "\n" not in str(info.value)
+
+
+def test_one_check_for_every_name_in_a_path():
+    from bench.model.scene import check_path_name, check_scene_name
+    assert check_path_name("val_clustered", "method name") == "val_clustered"
+    with pytest.raises(SceneError, match="^method name 'a/b' is not allowed"):
+        check_path_name("a/b", "method name")
+    with pytest.raises(SceneError, match="^scene name '../x' is not allowed"):
+        check_scene_name("../x")

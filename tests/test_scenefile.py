@@ -259,3 +259,35 @@ def test_random_bytes_mesh_is_one_clear_line(tmp_path):
         load_scene_file(write_scene(tmp_path, scene_text(mesh_file="noise.obj")))
     _assert_one_line(info, "noise.obj", "is not a .obj file", "not UTF-8 text")
     assert "charset_normalizer" not in str(info.value)
+
+
+def test_camera_names_are_checked_before_any_mesh(tmp_path):
+    """`[camera."a/../../../escaped"]` wrote EXRs outside the run folder (issue #27)."""
+    camera = '[camera."a/../../../escaped"]\neye = [0.5, 2, 2]\ntarget = [0.5, 0, 0.5]\n'
+    path = write_scene(tmp_path, scene_text(camera=camera, mesh_file="absent.obj"))
+    with pytest.raises(SceneError, match=r"scene\.toml': \[camera\]: camera name 'a/../../../escaped' is not allowed"):
+        load_scene_file(path)
+
+
+def test_non_utf8_scene_file_names_itself(tmp_path):
+    path = write_scene(tmp_path, "# 20\xb0 C\n" + scene_text())
+    path.write_bytes(path.read_text().encode("latin-1"))
+    with pytest.raises(SceneError, match=r"scene file '.*scene\.toml' is not UTF-8 text \(byte 4: 0xb0\)"):
+        load_scene_file(path)
+
+
+@pytest.mark.parametrize("mtllib", ["Quad.mtl", "../m.mtl", "sub/none.mtl", ""])
+def test_missing_material_library_is_an_error(tmp_path, mtllib):
+    """An OBJ whose `mtllib` is missing rendered grey, with the hash of an OBJ without mtllib (issue #27)."""
+    folder = tmp_path / "scene"
+    folder.mkdir()
+    (tmp_path / "m.mtl").write_text(QUAD_MTL)   # outside the OBJ's folder: trimesh does not read it
+    path = write_scene(folder, scene_text(), obj=QUAD_OBJ.replace("mtllib m.mtl", f"mtllib {mtllib}"))
+    (folder / "m.mtl").unlink()
+    with pytest.raises(SceneError, match=f"m.obj': its material library \\(mtllib '{mtllib}'\\) is not in the OBJ's "
+                                         f"folder") as info:
+        load_scene_file(path)
+    assert "\n" not in str(info.value) and "scene.toml" in str(info.value)
+    # without the mtllib line the default albedo is asked for, and given
+    (folder / "m.obj").write_text(QUAD_OBJ.replace("mtllib m.mtl\n", ""))
+    assert np.allclose(load_scene_file(path).albedo, 0.8)

@@ -300,3 +300,27 @@ def test_only_runs_the_named_families(gl_ctx, tmp_path):
     assert set(df["family"]) == {"scale", "invalid"}
     with pytest.raises(ValueError, match="unknown family scales"):
         stress.StressConfig(scenes=["cornell_spot"], methods=["direct"], families=["scales"]).resolve()
+
+
+@pytest.mark.parametrize("field, value, message", [
+    ("width", 0, "width=0 outside"), ("case_timeout", -1.0, "--timeout -1.0"), ("case_timeout", float("nan"), "--timeout"),
+    ("fuzz_examples", -1, "--fuzz-examples -1"), ("fuzz_examples", 0, "--fuzz-examples 0"), ("seed", -1, "--seed -1"),
+    ("families", [], "no family given"), ("families", ["scale", "scale"], "family 'scale' is given twice"),
+    ("methods", ["direct", "direct"], "method 'direct' is given twice"), ("views", [], "no view given")])
+def test_stress_config_refuses_instead_of_replacing(field, value, message):
+    """0 was read as "not given" (width 0 -> 64), a negative timeout accepted, -1 fuzz examples a traceback
+    (issue #27): ValueError, one line, before the run folder."""
+    cfg = stress.StressConfig(scenes=["cornell_spot"], methods=["direct"])
+    setattr(cfg, field, value)
+    with pytest.raises(ValueError, match=message.replace("[", r"\[")):
+        cfg.resolve()
+
+
+def test_a_parameter_value_never_leaves_the_stress_folder():
+    """A perturbation's folder is built from names and values a plugin declares: whatever they
+    hold, the folder stays one path-safe component (two names never share it)."""
+    from bench.stress.suite import folder_name
+    assert folder_name("params:n_avg=64") == "params_n_avg=64"
+    escaping = folder_name("params:mode=/../../../tmp/x")
+    assert "/" not in escaping and ".." not in escaping
+    assert escaping != folder_name("params:mode=/../../../tmp/y")

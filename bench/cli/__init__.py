@@ -1,24 +1,26 @@
 """`gibench` command line: run, sweep, stress, list, report, gate, reference, manuals (one module each).
 
-Exit codes: 0 success; 1 nothing useful produced (every row of a run failed), a gate
-regression, a stress failure, an out-of-date manual, or a missing dependency (Mitsuba); 2 bad
-input (one line naming the culprit: a scene, a parameter, an unusable --out, a corrupt results
-table, a gate that compared nothing); 130 interrupted (re-run the same command to resume, with
-or without --force).
+Exit codes: 0 success; 1 nothing useful produced (every row of a run failed), a run that could
+not finish (its --out vanished), a gate regression, a stress failure, an out-of-date manual, or
+a missing dependency (Mitsuba); 2 bad input (one line naming the culprit, before any work: an
+option outside its declared range (bench.cli.options), a name given twice, a name unsafe in a
+path, a scene, a parameter, an unusable --out, a run folder another run is writing, a corrupt
+results table, a run listed twice or unfinished in a gate, a gate that compared nothing); 130
+interrupted (Ctrl-C or SIGTERM: re-run the same command to resume, with or without --force).
 """
 from __future__ import annotations
 
-import argparse
 import sys
 
 from bench.cli import gate, listing, manuals, reference, report, run, stress, sweep
+from bench.cli.options import OneLineParser
 from bench.cli.options import param_sets as _param_sets  # noqa: F401  (the --param grammar, tested as such)
 
 COMMANDS = (run, sweep, stress, listing, report, gate, reference, manuals)
 
 
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(prog="gibench", description="Benchmark real-time diffuse GI against Mitsuba 3.")
+    parser = OneLineParser(prog="gibench", description="Benchmark real-time diffuse GI against Mitsuba 3.")
     sub = parser.add_subparsers(dest="command", required=True)
     for command in COMMANDS:
         command.add_parser(sub)

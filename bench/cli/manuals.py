@@ -11,13 +11,13 @@ from bench.protocol.registry import list_methods, load_method
 
 def add_parser(sub) -> None:
     p = sub.add_parser("manuals", help="check the methods' parameter tables against their declarations")
-    p.add_argument("--methods", default=None, help="comma-separated (default: every registered method)")
+    p.add_argument("--methods", type=options.method_list, default=None, help="comma-separated (default: every registered method)")
     p.add_argument("--write", action="store_true", help="regenerate the tables between their markers")
     p.set_defaults(func=main)
 
 
 def main(args) -> int:
-    methods = options.csv(args.methods) if args.methods else list_methods()
+    methods = args.methods or list_methods()
     if not options.known_methods(methods):
         return 2
     problems = []

@@ -13,14 +13,16 @@ from bench.run.config import RunConfig
 def add_parser(sub) -> None:
     p = sub.add_parser("run", help="run methods over scenes")
     options.add_run_options(p, None)
-    p.add_argument("--param", action="append", help="METHOD.NAME=VALUE[,VALUE...] (repeatable; lists make a grid)")
-    p.add_argument("--timing-budget", type=float, default=None, metavar="SECONDS",
+    p.add_argument("--param", action="append", type=options.param_item,
+                   help="METHOD.NAME=VALUE[,VALUE...] (repeatable, once per parameter; lists make a grid)")
+    p.add_argument("--timing-budget", type=options.float_in(*options.TIMING_BUDGET_RANGE_S), default=None,
+                   metavar="SECONDS",
                    help="calibrated timing: after --frames frames, time more until the median's 95%% interval is "
                         "within 5%% or SECONDS of frames are spent (default 1.0, 0.3 with --quick; 0: exactly --frames)")
-    p.add_argument("--workers", type=int, default=None, metavar="N",
+    p.add_argument("--workers", type=options.workers, default=None, metavar="N",
                    help="run rows and references as Dask tasks on a local cluster of N processes (timed rows "
                         "still one at a time per machine)")
-    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+    p.add_argument("--scheduler", type=options.non_empty, default=None, metavar="ADDRESS",
                    help="run rows and references on an existing dask.distributed cluster (tcp://host:8786)")
     p.add_argument("--quick", action="store_true",
                    help="a first report in minutes: scenes " + ",".join(options.QUICK_SCENES)
@@ -48,22 +50,22 @@ def quick_rungs(methods: list[str], params: dict) -> dict:
 
 
 def main(args) -> int:
-    methods = options.csv(args.methods)
+    methods = args.methods
     if not options.known_methods(methods):
         return 2
+    options.one_cluster(args.workers, args.scheduler)
     width, height = args.res
     params = options.param_sets(args.param)
-    scenes = options.csv(args.scenes) if args.scenes else list(options.QUICK_SCENES if args.quick
-                                                                else options.DEFAULT_SCENES)
+    options.distinct_param_sets(params)
+    scenes = args.scenes or list(options.QUICK_SCENES if args.quick else options.DEFAULT_SCENES)
     budget = args.timing_budget if args.timing_budget is not None else (0.3 if args.quick else 1.0)
     if args.quick and not args.defaults_only:
         params = quick_rungs(methods, params)
     cfg = RunConfig(scenes=scenes, methods=methods, width=width, height=height, frames=args.frames,
                     warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None, force=args.force,
-                    views=options.csv(args.views) if args.views else None, params=params,
-                    references=not args.no_reference,
-                    reference_spp_cap=args.reference_spp or (options.QUICK_REFERENCE_SPP if args.quick
-                                                             else options.REFERENCE_SPP),
+                    views=args.views, params=params, references=not args.no_reference,
+                    reference_spp_cap=args.reference_spp if args.reference_spp is not None else
+                    (options.QUICK_REFERENCE_SPP if args.quick else options.REFERENCE_SPP),
                     progress=not args.no_progress, ladders=not args.defaults_only,
                     timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers,
                     shadow_resolution=args.shadow_resolution)

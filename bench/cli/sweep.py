@@ -15,15 +15,16 @@ def add_parser(sub) -> None:
 
 
 def main(args) -> int:
-    methods = options.csv(args.methods)
+    methods = args.methods
     if not options.known_methods(methods):
         return 2
     width, height = args.res
     table, pareto, runner = sweep.run_sweep(
-        options.csv(args.scenes), methods, log=lambda m: print(m, file=sys.stderr), width=width, height=height,
+        args.scenes, methods, log=lambda m: print(m, file=sys.stderr), width=width, height=height,
         frames=args.frames, warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None,
-        force=args.force, views=options.csv(args.views) if args.views else None, references=not args.no_reference,
-        reference_spp_cap=args.reference_spp or options.REFERENCE_SPP, progress=not args.no_progress,
+        force=args.force, views=args.views, references=not args.no_reference,
+        reference_spp_cap=args.reference_spp if args.reference_spp is not None else options.REFERENCE_SPP,
+        progress=not args.no_progress,
         shadow_resolution=args.shadow_resolution)
     print(runner.summary())
     print(f"{len(table)} sweep points, {len(pareto)} on the Pareto fronts")

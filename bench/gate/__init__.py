@@ -38,9 +38,16 @@ not comparable. For each matched row:
   absolute floor (ERROR_ABS_FLOOR, so 0 vs 1e-12 is not a regression).
 * Rows of the baseline missing from the candidate, and new rows, are listed, not failures (a
   candidate may run a subset).
+* Runs: a side's runs must be distinct runs by content (the run id in each manifest, or for an
+  older folder its creation time, or for a folder by hand the folder itself; and the rows): one
+  run listed twice, by path, link or copy, would count as two repetitions, so it is bad input. A
+  run that did not finish (`run_state.json`, read by bench.protocol.results.run_progress:
+  interrupted, or still running) is bad input unless `allow_incomplete`, which names it in the
+  notes and the verdict. A compared row whose method version or scene hash a side lacks (a
+  hand-edited table) is compared as if unchanged, and the notes and the verdict say so.
 
 Exit code: 0 pass, 1 at least one regression, 2 bad input or nothing compared (missing run
-folder, no common row, every common row not comparable).
+folder, a run listed twice, an unfinished run, no common row, every common row not comparable).
 
 Modules, statistics then presentation: `load` (run folders, sides, row indexes, cells),
 `statistics` (per-run times, the timing test and its correction, the error check), `compare`

@@ -8,11 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from bench.gate.load import (cell_float, cell_text, index_rows, load_run, method_index, row_label, side_paths,
-                             status_text, without_method_index)
+from bench.gate.load import (cell_float, cell_text, check_distinct_runs, index_rows, load_run, method_index,
+                             row_label, side_paths, status_text, without_method_index)
 from bench.gate.presentation import percent_change, report_markdown, verdict_line
 from bench.gate.statistics import (CORRECTIONS, MIN_RUNS, adjust_p_values, error_check, error_columns, noise_floor,
                                    per_run_times, timing_check)
+from bench.protocol.results import run_progress
 from bench.protocol.vocabulary import REFERENCE_PARTS, Status
 
 
@@ -53,6 +54,8 @@ class GateResult:
     skipped_baseline: list = field(default_factory=list)  # (row, status) baseline rows not ok
     undecidable_timing: list = field(default_factory=list)  # (row, ratio, runs base, runs cand, reason)
     notes: list = field(default_factory=list)
+    incomplete: list = field(default_factory=list)       # "baseline runs/x: incomplete: 5 of 20 rows (...)"
+    unchecked: list = field(default_factory=list)        # checks that could not be made ("method versions of 2 rows")
     error: str | None = None
     baseline_info: dict = field(default_factory=dict)
     candidate_info: dict = field(default_factory=dict)
@@ -72,8 +75,10 @@ class GateResult:
 
 def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_threshold: float = 0.05,
                  alpha: float = 0.05, compare_changed_versions: bool = False, relative_to: str | None = None,
-                 correction: str = "holm", min_runs: int = MIN_RUNS) -> GateResult:
-    """Compare two sides, each a run folder or a list of run folders (repetitions)."""
+                 correction: str = "holm", min_runs: int = MIN_RUNS, allow_incomplete: bool = False) -> GateResult:
+    """Compare two sides, each a run folder or a list of run folders (repetitions). A run that did
+    not finish (bench.protocol.results.run_progress) is bad input unless `allow_incomplete`, and
+    then named in the verdict; one run listed twice on a side is bad input."""
     for name, value in (("time_threshold", time_threshold), ("error_threshold", error_threshold)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -88,13 +93,24 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
         raise ValueError("each side of the gate needs at least one run folder")
     bruns = [load_run(p, "baseline") for p in bpaths]
     cruns = [load_run(p, "candidate") for p in cpaths]
+    incomplete = []
+    for role, paths, runs in (("baseline", bpaths, bruns), ("candidate", cpaths, cruns)):
+        check_distinct_runs(role, paths, runs)
+        for path in paths:
+            progress = run_progress(path)
+            if progress.complete:
+                continue
+            if not allow_incomplete:
+                raise ValueError(f"{role} run {path} is {progress.describe()}; gate finished runs, or pass "
+                                 f"--allow-incomplete to compare the rows it has")
+            incomplete.append(f"{role} {path}: {progress.describe()}")
     (bdf, bman), (cdf, cman) = bruns[0], cruns[0]
     res = GateResult(bpaths[0] if len(bpaths) == 1 else Path(",".join(map(str, bpaths))),
                      cpaths[0] if len(cpaths) == 1 else Path(",".join(map(str, cpaths))),
                      float(time_threshold), float(error_threshold), float(alpha), correction=correction,
                      min_runs=min_runs, relative_to=relative_to, baseline_runs=len(bpaths),
                      candidate_runs=len(cpaths), baseline_rows=len(bdf), candidate_rows=len(cdf),
-                     baseline_info=bman, candidate_info=cman)
+                     baseline_info=bman, candidate_info=cman, incomplete=incomplete)
     bside = [(index_rows(df, f"baseline {p}", res.notes), m) for p, (df, m) in zip(bpaths, bruns)]
     cside = [(index_rows(df, f"candidate {p}", res.notes), m) for p, (df, m) in zip(cpaths, cruns)]
     if relative_to is not None:
@@ -139,6 +155,7 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
 
     err_cols = sorted(set(error_columns(bdf.columns)) & set(error_columns(cdf.columns)))
     lost_errors, ref_differs = 0, 0
+    unchecked = {"method_version": 0, "scene_hash": 0}   # compared rows whose column a side lacks
     timing: list = []   # (label, result of timing_check, note, base row, cand row)
     for key in common:
         b, c = bidx[key], cidx[key]
@@ -160,6 +177,8 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
                 continue
             note = "method changed"
         bh, ch = cell_text(b, "scene_hash"), cell_text(c, "scene_hash")
+        unchecked["method_version"] += not (isinstance(bv, str) and isinstance(cv, str))
+        unchecked["scene_hash"] += bh is None or ch is None
         if bh is not None and ch is not None and bh != ch:
             res.not_comparable.append((label, f"scene content changed ({bh[:8]} -> {ch[:8]})"))
             reasons["scene content changed"] = reasons.get("scene content changed", 0) + 1
@@ -253,6 +272,12 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
     if res.undecidable_timing and min(len(bpaths), len(cpaths)) < min_runs:
         res.notes.append(f"timing is gated on >= {min_runs} runs per side; this gate had {len(bpaths)} vs "
                          f"{len(cpaths)}: timing was not tested")
+    for column, what in (("method_version", "method versions"), ("scene_hash", "scene contents")):
+        if unchecked[column]:
+            res.unchecked.append(f"{what} of {unchecked[column]} row(s)")
+            res.notes.append(f"{what} of {unchecked[column]} compared row(s) could not be checked (a side has no "
+                             f"{column}, e.g. a hand-edited table): those rows were compared as if unchanged")
+    res.notes += [f"{what} (compared with --allow-incomplete)" for what in res.incomplete]
     if reasons.get("method version changed") and not compare_changed_versions:
         res.notes.append("rows whose method version changed are not compared (edited code is not compared as if "
                          "equal); compare them anyway with compare_changed_versions=True")

@@ -2,13 +2,14 @@
 indexed by `row_identity`, and the cells of a row read in one form."""
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from pathlib import Path
 
 import numpy as np
 
-from bench.protocol.results import load_results
+from bench.protocol.results import ResultsError, load_results
 from bench.protocol.vocabulary import Status, row_identity
 
 TIMING_COLUMN = "samples.frame_ms"
@@ -34,6 +35,8 @@ def load_run(path: Path, role: str):
         df = load_results(path)
     except FileNotFoundError:
         raise FileNotFoundError(f"{role} run folder {path} has no results.csv or results.parquet") from None
+    except ResultsError as exc:
+        raise ResultsError(f"{role}: {exc}") from None
     manifest = {}
     mpath = path / "manifest.json"
     if mpath.is_file():
@@ -47,6 +50,33 @@ def load_run(path: Path, role: str):
     if missing and len(df):
         raise ValueError(f"{role} results in {path} lack column(s) {', '.join(missing)}")
     return df, manifest
+
+
+def run_fingerprint(path: Path, df, manifest: dict) -> str:
+    """What tells one run from another by content, not by path: the run its manifest names (its
+    run id, which a copied folder keeps; for an older gibench, its creation time; for a folder
+    written by hand, the folder itself, links resolved) and its rows (a copy whose rows were
+    edited is another run)."""
+    if isinstance(manifest.get("run_id"), str) and manifest["run_id"]:
+        origin = f"run id {manifest['run_id']}"
+    elif manifest.get("created"):
+        origin = f"created {manifest['created']}"
+    else:
+        origin = f"folder {Path(path).resolve()}"
+    rows = hashlib.sha256(df.to_csv(index=False).encode()).hexdigest()[:12]
+    return f"{origin}, rows {rows}"
+
+
+def check_distinct_runs(role: str, paths: list, runs: list) -> None:
+    """Repetitions must be distinct runs: one run listed twice (the same folder, a link or a copy)
+    would count as independent evidence. ValueError (one line) naming both."""
+    seen: dict = {}
+    for path, (df, manifest) in zip(paths, runs):
+        fingerprint = run_fingerprint(path, df, manifest)
+        if fingerprint in seen:
+            raise ValueError(f"the {role} lists one run twice: {seen[fingerprint]} and {path} are the same run "
+                             f"({fingerprint}); repetitions must be distinct runs")
+        seen[fingerprint] = path
 
 
 # ---------------------------------------------------------------------------- row indexes

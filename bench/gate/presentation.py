@@ -73,14 +73,18 @@ def report_markdown(result) -> str:
 
 
 def verdict_line(result) -> str:
-    """The last line of the report: PASS, FAIL or ERROR and why."""
+    """The last line of the report: PASS, FAIL or ERROR and why (and what it could not see: an
+    incomplete run, checks a side's table could not support)."""
+    caveats = [f"{len(result.incomplete)} incomplete run(s)"] if result.incomplete else []
+    caveats += [f"not checked: {what}" for what in result.unchecked]
     if result.error:
         return f"**Verdict: ERROR** — {result.error}"
     if result.regressions:
         rows = len({f.row for f in result.regressions})
+        tail = f" ({', '.join(caveats)})" if caveats else ""
         return (f"**Verdict: FAIL** — {len(result.regressions)} regression(s) in {rows} of {result.compared} "
-                f"compared row(s)")
-    extra = []
+                f"compared row(s){tail}")
+    extra = list(caveats)
     if result.not_comparable:
         extra.append(f"{len(result.not_comparable)} not comparable")
     if result.missing:

@@ -28,7 +28,8 @@ face indices interleaved with vertices, or a TAB after `v`/`vt`, load wrongly in
 normalise them first.
 
 Every bad input raises `SceneError` with a one-line message naming the file: missing or
-unreadable mesh or archive, unsupported format, non-finite vertex, no triangles.
+unreadable mesh or archive, an OBJ's missing material library (`material_library`: why an
+error, not a warning), unsupported format, non-finite vertex, no triangles.
 """
 from __future__ import annotations
 
@@ -104,20 +105,38 @@ class MeshData:
                         self.dropped_duplicates, dict(self.meta))
 
 
-def _first_kd_overrides(obj_path: Path) -> dict:
+def material_library(obj_path: Path, text: str) -> tuple[str, bytes] | None:
+    """(name, bytes) of the material library an OBJ names, found as trimesh finds it (the text
+    after the file's first `mtllib`, looked up by trimesh's own resolver in the OBJ's folder);
+    None when the OBJ names none.
+
+    A library that is named but missing (or outside the OBJ's folder) is an error naming it, not
+    a warning: it holds the albedo, which every GI figure scales with, and trimesh silently falls
+    back to no materials, so the scene would render with the default albedo, under the content
+    hash of the same OBJ without `mtllib`, and a run's figures would not be of the scene its author
+    described. Bad input is refused before any work; remove the `mtllib` line to use
+    `default_albedo` on purpose."""
+    import trimesh
+    start = text.find("mtllib")   # as trimesh.exchange.obj.load_obj: the first occurrence, to the line's end
+    if start < 0:
+        return None
+    end = text.find("\n", start)
+    name = text[start + 6:end if end >= 0 else len(text)].strip()
+    try:
+        if not name:
+            raise FileNotFoundError(name)
+        return name, trimesh.resolvers.FilePathResolver(str(obj_path)).get(name)
+    except (OSError, ValueError):   # ValueError: the name leaves the OBJ's folder
+        raise SceneError(f"mesh file '{obj_path}': its material library (mtllib '{name}') is not in the OBJ's "
+                         f"folder '{obj_path.parent.resolve()}'; add it there, or remove the mtllib line to use the "
+                         f"default albedo") from None
+
+
+def _first_kd_overrides(mtl_text: str) -> dict:
     """Materials whose MTL block has several `Kd` lines -> the first one (trimesh keeps the last)."""
-    mtl_name = None
-    with open(obj_path, "rb") as fh:
-        for raw in fh:
-            if raw.startswith(b"mtllib"):
-                parts = raw.decode("utf-8", "replace").split(None, 1)
-                mtl_name = parts[1].strip() if len(parts) > 1 else None
-                break  # trimesh reads only the first mtllib too
-    if not mtl_name or not (obj_path.parent / mtl_name).is_file():
-        return {}
     kd_lines: dict[str, list] = {}
     current = None
-    for line in (obj_path.parent / mtl_name).read_text("utf-8", "replace").splitlines():
+    for line in mtl_text.splitlines():
         words = line.split("#", 1)[0].split()
         if not words:
             continue
@@ -164,13 +183,15 @@ def read_mesh(path, crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG, file_nor
         raise SceneError(f"mesh file '{path}': unsupported format '{suffix}' (supported: {', '.join(MESH_SUFFIXES)})")
     if suffix == ".npz":
         return read_mesh_npz(path)
+    text = None
     if suffix in _TEXT_SUFFIXES:
         try:
-            path.read_bytes().decode("utf-8")
+            text = path.read_bytes().decode("utf-8")
         except UnicodeDecodeError as exc:
             raise SceneError(f"mesh file '{path}' is not a {suffix} file: byte {exc.start} is not UTF-8 text") from None
         except OSError as exc:
             raise SceneError(f"mesh file '{path}' is unreadable ({exc.strerror})") from None
+    library = material_library(path, text) if suffix == ".obj" else None
     import trimesh
     try:
         loaded = trimesh.load(str(path), force="scene", process=False)
@@ -179,7 +200,7 @@ def read_mesh(path, crease_angle_deg: float = DEFAULT_CREASE_ANGLE_DEG, file_nor
     except Exception as exc:  # trimesh raises many types for a bad file
         msg = " ".join(str(exc).split()) or type(exc).__name__
         raise SceneError(f"mesh file '{path}' is unreadable ({type(exc).__name__}: {msg})") from None
-    kd_first = _first_kd_overrides(path) if suffix == ".obj" else {}
+    kd_first = _first_kd_overrides(library[1].decode("utf-8", "replace")) if library else {}
 
     names: list[str] = []
     kds: list[np.ndarray] = []

@@ -36,18 +36,27 @@ class SceneError(ValueError):
         super().__init__(str(message).translate(_LINE_BREAKS))
 
 
-# A scene name becomes a folder name under a run's images/ and references/: letters, digits
-# and `_ . + = -`, starting with a letter, digit or `_`, no "..", at most 100 characters, so
-# no name can reach outside the run folder or collide with a hidden file.
-SCENE_NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+=-]{0,99}")
+# Every name that becomes part of a path (a scene, a camera/view, a method: the folders
+# images/<scene>/<view>/<method>, references/<scene>/<view>) is checked here, by one function:
+# letters, digits and `_ . + = -`, starting with a letter, digit or `_`, no "..", at most 100
+# characters, so no name can reach outside the run folder, collide with a hidden file, or carry a
+# separator (`/`, `\`) or the `@` of an image folder's parameter-set suffix.
+PATH_NAME_PATTERN = re.compile(r"[A-Za-z0-9_][A-Za-z0-9_.+=-]{0,99}")
+SCENE_NAME_PATTERN = PATH_NAME_PATTERN
+
+
+def check_path_name(name, what: str = "name") -> str:
+    """`name` if it is safe as a folder name (PATH_NAME_PATTERN), else SceneError (a ValueError),
+    one line naming `what` ("scene name", "camera name", "method name") and the name."""
+    if not isinstance(name, str) or not PATH_NAME_PATTERN.fullmatch(name) or ".." in name:
+        raise SceneError(f"{what} {name!r} is not allowed: use 1-100 letters, digits and _ . + = - "
+                         f"(starting with a letter, digit or _, no '..')")
+    return name
 
 
 def check_scene_name(name) -> str:
-    """`name` if it is safe as a folder name (SCENE_NAME_PATTERN), else SceneError (one line)."""
-    if not isinstance(name, str) or not SCENE_NAME_PATTERN.fullmatch(name) or ".." in name:
-        raise SceneError(f"scene name {name!r} is not allowed: use 1-100 letters, digits and _ . + = - "
-                         f"(starting with a letter, digit or _, no '..')")
-    return name
+    """`name` if it is safe as a folder name (check_path_name), else SceneError (one line)."""
+    return check_path_name(name, "scene name")
 
 
 # Largest magnitude of a coordinate, direction or radiometric value: squares and cross products
@@ -342,6 +351,7 @@ class Scene:
         if not cameras:
             raise SceneError(f"scene '{name}': no camera")
         for cam_name, cam in cameras.items():
+            check_path_name(cam_name, f"scene '{name}': camera name")   # a view is a folder of the run
             if not isinstance(cam, Camera):
                 raise SceneError(f"scene '{name}': camera '{cam_name}' is not a Camera")
         return cls(name=name, vertices=vertices, normals=normals, faces=faces, albedo=albedo,

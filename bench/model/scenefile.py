@@ -68,13 +68,15 @@ Mesh files are read and cleaned by `bench.model.meshfile.read_mesh` (welding, du
 triangles, shading normals from `file_normals` / `crease_angle_deg`, zero-area triangles,
 trimesh caveats: its docstring).
 
-The scene name is a folder name in run folders: letters, digits and `_ . + = -` only
-(`bench.model.scene.SCENE_NAME_PATTERN`; `../x` is an error). A mesh `file` that resolves (symbolic
-links followed) outside the scene file's folder is an error unless the file sets `allow_meshes_outside = true` at its top level (default false).
+The scene name and the camera names are folder names in run folders: letters, digits and
+`_ . + = -` only (`bench.model.scene.check_path_name`; `../x` or `[camera."a/b"]` is an error).
+An OBJ's `mtllib` must name a file that exists (`bench.model.meshfile.material_library`). A mesh
+`file` that resolves (symbolic links followed) outside the scene file's folder is an error unless
+the file sets `allow_meshes_outside = true` at its top level (default false).
 
 Every bad input raises `SceneError` with a one-line message naming the file and the culprit:
-missing or unreadable mesh, non-finite vertex, no light, no camera, unknown key (naming the key
-and its table), wrong type.
+missing or unreadable mesh or material library, a file that is not UTF-8 text, non-finite vertex,
+no light, no camera, unknown key (naming the key and its table), wrong type.
 """
 from __future__ import annotations
 
@@ -86,7 +88,7 @@ import numpy as np
 
 from bench.model.meshfile import DEFAULT_ALBEDO, DEFAULT_CREASE_ANGLE_DEG, read_mesh, transform_matrix, transformed
 from bench.model.scene import (MAX_MAGNITUDE, Camera, DirectionalLight, PointLight, Scene, SceneError, SpotLight,
-                               check_scene_name)
+                               check_path_name, check_scene_name)
 
 # ---------------------------------------------------------------------------- TOML schema
 _TOP_KEYS = ("name", "purpose", "default_albedo", "allow_meshes_outside", "mesh", "light", "camera")
@@ -275,6 +277,9 @@ def load_scene_file(path) -> Scene:
             doc = tomllib.load(fh)
     except FileNotFoundError:
         raise SceneError(f"scene file '{path}' not found") from None
+    except UnicodeDecodeError as exc:   # tomllib decodes the whole file as UTF-8 first
+        raise SceneError(f"scene file '{path}' is not UTF-8 text (byte {exc.start}: "
+                         f"0x{exc.object[exc.start]:02x})") from None
     except tomllib.TOMLDecodeError as exc:
         raise SceneError(f"scene file '{path}': invalid TOML ({' '.join(str(exc).split())})") from None
     except OSError as exc:
@@ -305,6 +310,11 @@ def load_scene_file(path) -> Scene:
     if not cameras:
         raise ctx.error("top level", "no camera (add a [camera.main] table)")
 
+    for cam in cameras:   # before any mesh is read: a camera name is a folder of the run
+        try:
+            check_path_name(cam, "camera name")
+        except SceneError as exc:
+            raise ctx.error("[camera]", str(exc)) from None
     parsed_lights = [_parse_light(ctx, i, t) for i, t in enumerate(lights)]
     parsed_cameras = {cam: _parse_camera(ctx, cam, t) for cam, t in cameras.items()}
     base = path.parent

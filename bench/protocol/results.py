@@ -3,6 +3,13 @@ Parquet, written atomically after every row so an interrupted run loses nothing.
 
 Schema versions: SCHEMA_VERSION is stored in the manifest; `migrate` upgrades older tables.
 
+Cells: `load_results` refuses a table (ResultsError, one line naming the file, row and column)
+that lacks a row-identity column or holds a cell that is not a number in a numeric column (a
+hand-edited CSV): every reader (report, gate, a resumed run) then sees numbers where numbers belong.
+
+Whether a run finished (`run_progress`): `run_state.json`, written by the runner
+(bench.run.plan.RunState), is the one record of it; report and gate both read it here.
+
 Integrity: `results.checksums.json` holds the sha256 and row count of both files, written after
 them. `load_results` uses a file only when it is consistent: with checksums, the file whose
 checksum holds (parquet first; the CSV when only it holds; an error when neither does); without
@@ -11,19 +18,31 @@ cut mid-line (error), and a parquet and a CSV that disagree on their rows are an
 """
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import json
 import os
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from bench.protocol.vocabulary import METRIC_NAMES, Status
+
 SCHEMA_VERSION = 1
 KEY_COLUMNS = ("scene", "view", "method", "params", "seed")
 CHECKSUMS = "results.checksums.json"
 MANIFEST = "manifest.json"
+RUN_STATE = "run_state.json"   # the invocation, whether it finished, the rows it planned and recorded
+RUN_LOCK = ".gibench-run.lock"  # flock'ed by the run writing the folder (bench.run.plan.RunFolderLock)
+IDENTITY_COLUMNS = ("scene", "view", "method", "params", "seed", "status")
+IMAGE_ROW_COLUMNS = ("width", "height", "image_dir")   # what a row with images (ok, cached) needs besides
+NUMERIC_COLUMNS = ("seed", "width", "height", "frames", "warmup", "frame_ms", "frame_ms_iqr", "gpu_ms", "prepare_ms",
+                   "frames_total_ms", "row_wall_ms", "harness_overhead", "peak_rss_mb", "timing_lock_wait_ms")
+NUMERIC_PREFIXES = ("stage_ms.", "reference_spp.", "reference_noise_floor.") + tuple(f"{m}." for m in METRIC_NAMES)
+JSON_COLUMNS = {"params": dict, "samples.frame_ms": list, "samples.stage_ms": dict}   # cells of JSON text
 BASE_COLUMNS = ("scene", "scene_hash", "view", "method", "params", "seed", "width", "height", "frames", "warmup",
                 "frame_ms", "frame_ms_iqr", "gpu_ms", "status", "method_version", "row_key",
                 "skipped_stages", "samples.frame_ms", "samples.stage_ms")
@@ -95,7 +114,7 @@ def _same_rows(a: pd.DataFrame, b: pd.DataFrame) -> bool:
     return True
 
 
-def _load_table(run_dir: Path) -> pd.DataFrame:
+def _load_table(run_dir: Path) -> tuple[pd.DataFrame, Path]:
     pq, csv = run_dir / "results.parquet", run_dir / "results.csv"
     if not pq.is_file() and not csv.is_file():
         raise FileNotFoundError(f"no results.csv or results.parquet in {run_dir}")
@@ -111,7 +130,7 @@ def _load_table(run_dir: Path) -> pd.DataFrame:
             if len(good) == 1 and (pq.is_file() and csv.is_file()):
                 print(f"gibench: warning: {run_dir}: {({pq, csv} - set(good)).pop().name} does not match its "
                       f"checksum; using {good[0].name}", file=sys.stderr)
-            return _read_parquet(good[0]) if good[0] == pq else _read_csv(good[0])
+            return (_read_parquet(good[0]) if good[0] == pq else _read_csv(good[0])), good[0]
         raise ResultsError(f"{run_dir}: neither results.parquet nor results.csv matches {CHECKSUMS} "
                            f"(edited or damaged); delete {CHECKSUMS} to accept the files as they are")
     if pq.is_file() and csv.is_file():
@@ -119,13 +138,57 @@ def _load_table(run_dir: Path) -> pd.DataFrame:
         if not _same_rows(a, b):
             raise ResultsError(f"{run_dir}: results.parquet ({len(a)} rows) and results.csv ({len(b)} rows) "
                                f"disagree; delete the wrong one")
-        return a
-    return _read_parquet(pq) if pq.is_file() else _read_csv(csv)
+        return a, pq
+    return (_read_parquet(pq), pq) if pq.is_file() else (_read_csv(csv), csv)
+
+
+def numeric_column(name: str) -> bool:
+    """Whether the results schema holds numbers in column `name`."""
+    return name in NUMERIC_COLUMNS or name.startswith(NUMERIC_PREFIXES)
+
+
+def _json_cell(text, kind: type) -> bool:
+    try:
+        return isinstance(json.loads(text), kind)
+    except (TypeError, ValueError):
+        return False
+
+
+def _check_cells(df: pd.DataFrame, source: Path) -> pd.DataFrame:
+    """The table with its numeric columns as numbers; a missing identity column, a cell that is not
+    a number or a JSON cell that does not parse is a ResultsError naming the file, the row (as a
+    spreadsheet numbers it) and the column."""
+    missing = [c for c in IDENTITY_COLUMNS if c not in df.columns]
+    if missing and len(df):
+        raise ResultsError(f"{source} lacks column(s) {', '.join(missing)}: not a gibench results table")
+    missing = [c for c in IMAGE_ROW_COLUMNS if c not in df.columns]
+    if missing and "status" in df.columns and df["status"].map(Status.has_images).any():
+        raise ResultsError(f"{source} lacks column(s) {', '.join(missing)}, which its rendered rows need: "
+                           f"the table was edited or damaged")
+    for col in [c for c in df.columns if numeric_column(str(c))]:
+        if pd.api.types.is_numeric_dtype(df[col]) and not pd.api.types.is_bool_dtype(df[col]):
+            continue
+        values = pd.to_numeric(df[col], errors="coerce")
+        bad = df[col].notna() & values.isna()
+        if bad.any():
+            first = int(np.flatnonzero(bad.to_numpy())[0])
+            raise ResultsError(f"{source}: column {col} holds {df[col].iloc[first]!r} in row {first + 2} "
+                               f"({int(bad.sum())} cell(s) in all), not a number: the table was edited or damaged")
+        df[col] = values
+    for col, kind in JSON_COLUMNS.items():
+        if col not in df.columns:
+            continue
+        for i, cell in enumerate(df[col]):
+            if not (cell is None or (isinstance(cell, float) and np.isnan(cell)) or _json_cell(cell, kind)):
+                raise ResultsError(f"{source}: column {col} holds {cell!r} in row {i + 2}, not a JSON "
+                                   f"{'object' if kind is dict else 'list'}: the table was edited or damaged")
+    return df
 
 
 def load_results(run_dir: Path) -> pd.DataFrame:
     run_dir = Path(run_dir)
-    df = _load_table(run_dir)
+    df, source = _load_table(run_dir)
+    df = _check_cells(df, source)
     manifest = run_dir / "manifest.json"
     version = json.loads(manifest.read_text()).get("schema_version", 1) if manifest.is_file() else 1
     return migrate(df, version)
@@ -191,3 +254,75 @@ def load_json_object(path: Path, expected: str) -> dict:
 def load_manifest(run_dir: Path) -> dict:
     """The run folder's manifest.json ({} when absent)."""
     return load_json_object(Path(run_dir) / MANIFEST, "an object")
+
+
+# ---------------------------------------------------------------------------- a finished run
+@dataclass(frozen=True)
+class RunProgress:
+    """Whether a run folder's last invocation finished (`run_state.json`, the one record of it).
+
+    `finished` is None for a folder without a run state (written by hand or by a gibench from
+    before run states), which readers take as it is; `running` says a gibench run holds the
+    folder now (its lock): such a folder is unfinished whatever its state says; `recorded` of
+    `planned` rows were recorded when the state was read."""
+    finished: bool | None
+    planned: int | None = None
+    recorded: int | None = None
+    running: bool = False
+    problem: str | None = None      # why the state could not be read
+
+    @property
+    def complete(self) -> bool:
+        return self.finished is not False
+
+    def describe(self) -> str:
+        """"incomplete: 9 of 20 rows (still running)", "" for a complete run."""
+        if self.complete:
+            return ""
+        if self.problem:
+            return f"incomplete: {self.problem}"
+        counts = (f"{self.recorded} of {self.planned} rows" if self.planned is not None
+                  else f"{self.recorded} rows recorded")   # a state from before `planned` was recorded
+        why = ("still running" if self.running
+               else "interrupted or failed: re-run the same command to finish it")
+        return f"incomplete: {counts} ({why})"
+
+
+def run_progress(run_dir: Path) -> RunProgress:
+    """The run folder's RunProgress, read from `run_state.json` (and its lock, for `running`)."""
+    path = Path(run_dir) / RUN_STATE
+    running = run_folder_locked(run_dir)
+    if not path.is_file():
+        return RunProgress(finished=False, running=True, problem="a gibench run is starting in it") if running \
+            else RunProgress(finished=None)
+    try:
+        state = json.loads(path.read_bytes())
+    except (OSError, ValueError):
+        state = None
+    if not isinstance(state, dict) or not isinstance(state.get("finished"), bool):
+        return RunProgress(finished=False, running=running,
+                           problem=f"{path} is unreadable: whether the run finished is unknown")
+    if running and state["finished"]:   # the state of the previous invocation, before this one's start
+        return RunProgress(finished=False, running=True, problem="a gibench run is writing it now")
+    planned, recorded = state.get("planned"), state.get("recorded")
+    return RunProgress(finished=state["finished"], planned=planned if isinstance(planned, int) else None,
+                       recorded=recorded if isinstance(recorded, int) else len(state.get("done") or []),
+                       running=running)
+
+
+def run_folder_locked(run_dir: Path) -> bool:
+    """Whether a gibench run holds the folder's lock now (a shared, non-blocking probe, released at
+    once: the writer's exclusive lock excludes it; a writer starting meanwhile retries)."""
+    try:
+        fd = os.open(Path(run_dir) / RUN_LOCK, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)   # closing drops the probe's lock
+    return False

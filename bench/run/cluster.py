@@ -8,14 +8,15 @@ return the measured fields and the images; the client writes the EXRs, the row c
 results table, so a distributed run folder has the same files as a serial one, rows in the
 same order.
 
-* Timing: a row's frames must not share a machine's cores with another row's. Every task holds
-  the host's timing lock (`timing_lock`: an exclusive `flock` on `<tmp>/gibench-timing.lock`, or
-  on `$GIBENCH_TIMING_LOCK`) while it renders, so rows on one host run one at a time whatever the
-  number of workers there, and rows on different hosts in parallel (a lab: one or more workers
-  per GPU machine). The kernel releases the lock when its holder dies, so a killed worker does
-  not block the host. (A Dask `Semaphore` did not hold: its lease is refreshed by the worker's
-  event loop, which a GL call holding the GIL for longer than the lease timeout, 30 s, starves;
-  the scheduler then expired the lease and let a second row of the host render beside it.)
+* Timing: a row's frames must not share a machine's cores with another row's. Every task (and
+  every row of a serial run, bench.run.serial) holds the host's timing lock (`timing_lock`: an
+  exclusive `flock` on `<tmp>/gibench-timing.lock`, or on `$GIBENCH_TIMING_LOCK`) while it
+  renders, so rows on one host run one at a time whatever the number of workers there, and rows
+  on different hosts in parallel (a lab: one or more workers per GPU machine). The kernel
+  releases the lock when its holder dies, so a killed worker does not block the host. (A Dask
+  `Semaphore` did not hold: its lease is refreshed by the worker's event loop, which a GL call
+  holding the GIL for longer than the lease timeout, 30 s, starves; the scheduler then expired
+  the lease and let a second row of the host render beside it.)
 * Failures: a task that raises is a `failed` row (the method's error, as in a serial run); a
   worker that dies loses only its task, which the scheduler retries (`retries=2`) elsewhere; a
   task the scheduler drops instead (its future cancelled, "already forgotten", seen under load
@@ -53,20 +54,31 @@ def timing_lock_path() -> Path:
     return Path(os.environ.get("GIBENCH_TIMING_LOCK") or Path(tempfile.gettempdir()) / "gibench-timing.lock")
 
 
+@dataclasses.dataclass
+class TimingLockWait:
+    """How long a holder of the timing lock waited for it: more than a few milliseconds means
+    another gibench process of this host was timing (its frames were not shared with ours)."""
+    seconds: float = 0.0
+
+
 @contextlib.contextmanager
 def timing_lock(path: Path | None = None):
     """Hold the host's timing lock (an exclusive flock) for the block: one timed row per host at a
-    time. Waiting releases the GIL (the worker keeps answering its scheduler); the kernel drops the
+    time, whichever gibench process (serial run or Dask worker) renders it. Yields a TimingLockWait.
+    Waiting releases the GIL (the worker keeps answering its scheduler); the kernel drops the
     lock when the holding process exits or is killed, so a dead holder never blocks the host."""
     path = Path(path) if path is not None else timing_lock_path()
     try:
-        fd = os.open(path, os.O_RDONLY | os.O_CREAT, 0o644)   # flock needs no write access
+        # flock needs no write access; O_CREAT only when missing: in a sticky /tmp, O_CREAT on
+        # another user's file is refused (fs.protected_regular) even for reading
+        fd = os.open(path, os.O_RDONLY) if path.exists() else os.open(path, os.O_RDONLY | os.O_CREAT, 0o644)
     except OSError as exc:
         raise ValueError(f"timing lock {path}: cannot open it ({exc.strerror}); set GIBENCH_TIMING_LOCK") from None
     try:
+        t0 = time.perf_counter()
         fcntl.flock(fd, fcntl.LOCK_EX)
         try:
-            yield
+            yield TimingLockWait(time.perf_counter() - t0)
         finally:
             fcntl.flock(fd, fcntl.LOCK_UN)
     finally:
@@ -147,7 +159,7 @@ def render_task(cfg, scene_ref, view: str, method: str, params: dict) -> dict:
     if facts is None:
         facts = compute_facts(scene)
         _STATE["facts"][scene.content_hash()] = facts
-    with timing_lock():
+    with timing_lock() as wait:
         t0 = time.perf_counter()
         gpu = _worker_gpu(ctx, scene, facts, cfg.seed)
         t1 = time.perf_counter()
@@ -157,6 +169,8 @@ def render_task(cfg, scene_ref, view: str, method: str, params: dict) -> dict:
         outcome["seconds"] = time.perf_counter() - t2
         outcome["upload_seconds"] = t1 - t0
         outcome["shared_build"] = build
+    if "measured" in outcome:
+        outcome["measured"]["timing_lock_wait_ms"] = wait.seconds * 1e3
     outcome["worker"] = f"{socket.gethostname()}:{os.getpid()}"
     return outcome
 
@@ -219,6 +233,7 @@ def run_rows(runner, ctx, scenes, jobs, renderer, resumable, references, progres
             planned = runner.plan_row(ctx, scenes[job.scene], job, renderer, resumable)
             if planned["done"]:
                 done[i] = planned["row"]
+                runner.state.mark_done(planned["row"])   # counted as recorded; the table is saved with the next row
                 if progress is not None:
                     progress.update(1)
                 continue

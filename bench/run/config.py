@@ -6,6 +6,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from bench.model.scene import check_path_name
 from bench.protocol.registry import load_method
 from bench.run.harness import TimingBudget
 
@@ -48,6 +49,17 @@ class RunConfig:
             raise ValueError("no scene given")
         if not self.methods:
             raise ValueError("no method given")
+        if int(self.reference_spp_cap) < 2:
+            raise ValueError(f"reference spp cap {self.reference_spp_cap} must be >= 2")
+        if int(self.seed) < 0:
+            raise ValueError(f"seed={self.seed} must be >= 0")
+        if self.workers is not None and not 1 <= int(self.workers) <= 256:
+            raise ValueError(f"workers={self.workers} outside [1, 256]")
+        # names that become folders of the run (a RunConfig built in code skips the CLI's checks)
+        for method in self.methods:
+            check_path_name(method, "method name")
+        for view in self.views or ():
+            check_path_name(view, "view name")
 
 
 def auto_shadow_resolution(width: int, height: int) -> int:

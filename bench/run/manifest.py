@@ -5,7 +5,9 @@ arguments, the scene facts and purposes, and what each method of the run declare
 (`methods`: version, summary, stages, needs, parameter declarations and defaults, quality
 ladder), so that a report of an old run reads its labels and defaults from the run folder, not
 from today's code. After the rows it adds the wall time of each phase, the shared passes'
-measurements, peak memory per row and the harness overhead; `gibench report` adds its own phase.
+measurements, peak memory per row, the harness overhead and the rows' waits for the host's timing
+lock. Each invocation gets a `run_id` (the gate tells repetitions apart by it). Nothing else writes
+it: `gibench report` records its own time in the report's folder, never in the run it reads.
 """
 from __future__ import annotations
 
@@ -14,6 +16,7 @@ import json
 import os
 import platform
 import sys
+import uuid
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -89,6 +92,7 @@ def method_declarations(methods) -> dict:
 def write_manifest(run_dir: Path, ctx, cfg: RunConfig, scenes: dict, facts: dict) -> None:
     manifest = {
         "schema_version": store.SCHEMA_VERSION,
+        "run_id": uuid.uuid4().hex,   # this invocation: a copy of the folder is the same run, a re-run is not
         "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "git_commit": git_commit(),
         "machine": machine_info(ctx),
@@ -120,9 +124,13 @@ def _update(run_dir: Path, fn) -> None:
     store.atomic_write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2, default=str))
 
 
+TIMING_LOCK_CONTENDED_MS = 10.0   # a longer wait for the host's timing lock: another process was timing
+
+
 def record_phases(run_dir: Path, phases: dict, shared_summary: dict, rows: list[dict]) -> None:
     """Add the wall time of each phase, the shared passes' measurements, each rendered row's peak
-    memory and the harness overhead over the rendered rows to the manifest."""
+    memory, the harness overhead over the rendered rows and their waits for the host's timing
+    lock (`timing_lock`: rows that waited, seconds in all) to the manifest."""
     def add(manifest):
         manifest["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
         if shared_summary:   # each view's shared passes, measured once, whose medians rows add
@@ -133,9 +141,8 @@ def record_phases(run_dir: Path, phases: dict, shared_summary: dict, rows: list[
         total = sum(r["row_wall_ms"] for r in rendered)
         if total > 0:
             manifest["harness_overhead"] = round(phases["rows_other"] * 1e3 / total, 4)
+        waits = [float(r["timing_lock_wait_ms"]) for r in rows
+                 if r.get("status") == "ok" and isinstance(r.get("timing_lock_wait_ms"), (int, float))]
+        manifest["timing_lock"] = {"rows_waited": sum(w > TIMING_LOCK_CONTENDED_MS for w in waits),
+                                   "waited_s": round(sum(waits) / 1e3, 3)}
     _update(run_dir, add)
-
-
-def record_phase(run_dir: Path, phase: str, seconds: float) -> None:
-    """Add one phase's wall time (e.g. the report, built after the run) to the manifest."""
-    _update(run_dir, lambda m: m.setdefault("phases_s", {}).__setitem__(phase, round(seconds, 3)))

@@ -7,24 +7,36 @@
   moved aside when this run's rows need the same image folder.
 * `RunState` (`run_state.json`) records which rows the current invocation finished, so an
   interrupted run resumes without redoing them, a `force=True` run too (without `force`, every
-  finished row of the folder is reused).
+  finished row of the folder is reused); and how many rows it planned and recorded, and whether
+  it finished: the one notion of a finished run, which report and gate read
+  (bench.protocol.results.run_progress).
+* `RunFolderLock`: a run folder has one writer at a time. The run holds an exclusive `flock` on
+  `<run>/.gibench-run.lock` from before its first write to its end; a second run into the folder
+  is refused with one line naming the holder (bad input, exit 2), not made to wait: a run queued
+  behind another for minutes, with no sign of it, looks hung, and two runs into one folder are
+  most often a mistake (the same `--out` in two scripts). Merges then never lose rows: each run
+  reads the folder's rows after taking the lock. The kernel drops the lock when its holder dies.
+  A folder that vanishes or is replaced during the run (`check`) ends it with `RunFolderLost`.
 """
 from __future__ import annotations
 
 import datetime as _dt
+import fcntl
 import hashlib
 import json
 import os
 import shutil
+import socket
+import sys
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 from bench.model.scene import SceneError
 from bench.protocol import results as store
+from bench.protocol.results import RUN_LOCK, RUN_STATE
 from bench.protocol.vocabulary import Status, row_identity
 from bench.run.config import RunConfig, expand_param_sets
-
-RUN_STATE = "run_state.json"
 
 
 @dataclass(frozen=True)
@@ -92,7 +104,7 @@ def point_latest(run_dir: Path) -> None:
 
 
 def prepare_run_dir(run_dir: Path) -> None:
-    """Create the run folder; an unusable --out is bad input (ValueError, one line)."""
+    """Create the run folder (or a report's); an unusable --out is bad input (ValueError, one line)."""
     if run_dir.exists() and not run_dir.is_dir():
         raise ValueError(f"--out {run_dir} is a file, not a run folder")
     try:
@@ -102,6 +114,74 @@ def prepare_run_dir(run_dir: Path) -> None:
         probe.unlink()
     except OSError as exc:
         raise ValueError(f"--out {run_dir} is not a writable folder ({exc.strerror or exc})") from None
+
+
+class RunFolderLost(OSError):
+    """The run folder vanished or was replaced while the run wrote it: the run is incomplete."""
+
+
+class RunFolderLock:
+    """The owner of a run folder: an exclusive flock on `<run>/.gibench-run.lock` (see the module's
+    docstring). The file names the holder while it is held and is emptied on release, so two
+    finished run folders still compare file by file."""
+    PROBE_GRACE_S = 1.0   # a reader's probe (bench.protocol.results.run_folder_locked) holds it for microseconds
+
+    def __init__(self, run_dir: Path):
+        self.run_dir = Path(run_dir)
+        self.path = self.run_dir / RUN_LOCK
+        self._file = None
+        self._identity = None   # (folder, lock file) as (st_dev, st_ino) when the lock was taken
+
+    def acquire(self) -> None:
+        """Take the lock; another run holding it is bad input (ValueError, one line)."""
+        handle = open(self.path, "a+")   # a+ creates it without emptying the holder's note
+        deadline = time.monotonic() + self.PROBE_GRACE_S
+        while True:
+            try:
+                fcntl.flock(handle.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() < deadline:
+                    time.sleep(0.05)
+                    continue
+                handle.seek(0)
+                holder = " ".join(handle.read().split()) or "holder unknown"
+                handle.close()
+                raise ValueError(f"--out {self.run_dir} is being written by another gibench run ({holder}); "
+                                 f"wait for it to finish or choose another --out") from None
+        handle.seek(0)
+        handle.truncate()
+        command = " ".join(sys.argv)[:300]
+        handle.write(f"pid {os.getpid()} on {socket.gethostname()} since "
+                     f"{_dt.datetime.now().isoformat(timespec='seconds')}: {command}\n")
+        handle.flush()
+        self._file = handle
+        folder, lock = os.stat(self.run_dir), os.fstat(handle.fileno())
+        self._identity = ((folder.st_dev, folder.st_ino), (lock.st_dev, lock.st_ino))
+
+    def check(self) -> None:
+        """RunFolderLost when the folder (or its lock file) is no longer the one this run locked."""
+        if self._identity is None:
+            return
+        try:
+            folder, lock = os.stat(self.run_dir), os.stat(self.path)
+            same = ((folder.st_dev, folder.st_ino), (lock.st_dev, lock.st_ino)) == self._identity
+        except OSError:
+            same = False
+        if not same:
+            raise RunFolderLost(f"{self.run_dir} vanished or was replaced while this run wrote it: the run is "
+                                f"incomplete; re-run the same command to repair it")
+
+    def release(self) -> None:
+        if self._file is None:
+            return
+        try:
+            self._file.seek(0)
+            self._file.truncate()
+        except OSError:   # a vanished folder: nothing to empty
+            pass
+        self._file.close()   # closing drops the flock
+        self._file = None
 
 
 def existing_rows(run_dir: Path) -> list[dict]:
@@ -157,7 +237,7 @@ def invocation_hash(cfg: RunConfig, scenes: dict) -> str:
 
 class RunState:
     """`run_state.json`: the invocation (a hash of its arguments and scenes), whether it finished,
-    and the rows it finished ("row_key|image_dir")."""
+    how many rows it planned and recorded, and the rows it finished ("row_key|image_dir")."""
 
     def __init__(self, run_dir: Path):
         self.path = Path(run_dir) / RUN_STATE
@@ -180,15 +260,16 @@ class RunState:
             return resumable_rows(existing, set(self.previous.get("done") or []))
         return {}
 
-    def start(self, invocation: str) -> None:
-        self.state = {"invocation": invocation, "finished": False, "done": []}
+    def start(self, invocation: str, planned: int) -> None:
+        self.state = {"invocation": invocation, "finished": False, "planned": int(planned), "recorded": 0, "done": []}
         self._write()
 
     def mark_done(self, row: dict) -> None:
-        """Record a finished row (a failed one is tried again by a resumed run)."""
+        """Count a recorded row; note it as finished unless it failed (a resumed run tries it again)."""
+        self.state["recorded"] += 1
         if not Status.is_failed(row.get("status")) and isinstance(row.get("row_key"), str):
             self.state["done"].append(f"{row['row_key']}|{row['image_dir']}")
-            self._write()
+        self._write()
 
     def finish(self) -> None:
         self.state["finished"] = True

@@ -19,14 +19,26 @@ Trust rules:
   from the current run; an entry that fails its checks is a miss, evicted with a one-line warning.
 * Scene names are unique within a run (two scenes named alike are bad input, not a silent
   overwrite); a hit keyed on scene *content* therefore never mislabels a row.
-* An existing `--out` is merged, not replaced (bench.run.plan.merge_existing).
-* Every `--param` is checked for every method before the first row; a `--param` of a method
-  that is not in the run is bad input.
+* An existing `--out` is merged, not replaced (bench.run.plan.merge_existing), by one run at a
+  time: the run holds the folder's lock (bench.run.plan.RunFolderLock) from before its first
+  write to its end, and a second run into it is refused. A folder that vanishes mid-run ends the
+  run with RunFolderLost (exit 1: incomplete, a re-run repairs it).
+* Bad input is found before the run folder exists: every `--param` is checked for every method
+  (a `--param` of a method that is not in the run is bad input), the scenes are loaded and the
+  jobs planned (an unknown scene, a missing scene file or camera).
+* Timing: each row renders under the host's timing lock (bench.run.cluster.timing_lock), as a
+  Dask task does, so two gibench runs of one machine take turns in their timed frames instead of
+  sharing the cores; a row records how long it waited (`timing_lock_wait_ms`), the manifest the
+  run's total (`timing_lock`). Other load of the machine is not excluded.
+* SIGTERM ends a run as Ctrl-C does (KeyboardInterrupt): the rows recorded so far are saved, the
+  run state says unfinished, and the same command resumes.
 """
 from __future__ import annotations
 
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -57,12 +69,24 @@ class Runner:
     """Runs a RunConfig; `run()` returns the results DataFrame."""
 
     def __init__(self, cfg: RunConfig, log=print):
+        t_setup = time.perf_counter()
         cfg.validate()
         self.cfg = cfg
         self.log = log
         self.resolved = self._validate_params()
+        self.scene_refs: dict = {}  # scene name -> what a worker loads it from (corpus name / path / Scene)
+        # bad input (a scene, a scene file, a camera) is found before the run folder is created
+        self.scenes = self._load_scenes()
+        self.jobs = plan.make_jobs(cfg, self.scenes)
         self.run_dir = Path(cfg.out) if cfg.out else plan.default_run_dir()
         plan.prepare_run_dir(self.run_dir)
+        self.folder = plan.RunFolderLock(self.run_dir)
+        self.folder.acquire()   # before reading what the folder holds: no other run writes it from here on
+        try:
+            self.existing = plan.existing_rows(self.run_dir)   # a corrupt table is bad input, before any write
+        except Exception:
+            self.folder.release()
+            raise
         self.rows: list[dict] = []
         self.kept: list[dict] = []   # rows of the folder this run does not produce (merge)
         self.counts = {"ok": 0, "cached": 0, "resumed": 0, "failed": 0, "skipped": 0}
@@ -72,10 +96,9 @@ class Runner:
         self._gpu = None            # (scene name, GpuScene): uploaded once per scene, shared by its rows
         self.shared = SharedPassCache()
         self.shared_summary: dict = {}  # "scene/view" -> variant -> measurement summary (manifest)
-        self.scene_refs: dict = {}  # scene name -> what a worker loads it from (corpus name / path / Scene)
         # wall seconds per phase of the run (the manifest records them)
-        self.phases = {"setup": 0.0, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0, "rows_other": 0.0,
-                       "references": 0.0, "metrics": 0.0}
+        self.phases = {"setup": time.perf_counter() - t_setup, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0,
+                       "rows_other": 0.0, "references": 0.0, "metrics": 0.0}
 
     def _validate_params(self) -> dict:
         """Every --param of every method, checked before the first row: {(method, i): resolved}."""
@@ -122,24 +145,38 @@ class Runner:
 
     # ------------------------------------------------------------------ main loop
     def run(self):
-        cfg = self.cfg
+        """Run every job; the folder's lock is released at the end, whatever happens."""
+        sigterm = None
+        if threading.current_thread() is threading.main_thread():
+            sigterm = signal.signal(signal.SIGTERM, _interrupt)
+        try:
+            return self._run()
+        except OSError as exc:
+            if not isinstance(exc, plan.RunFolderLost):
+                self.folder.check()   # a write failed because the folder vanished: say that
+            raise
+        finally:
+            if sigterm is not None:
+                signal.signal(signal.SIGTERM, sigterm)
+            self.folder.release()
+
+    def _run(self):
+        cfg, scenes, jobs = self.cfg, self.scenes, self.jobs
         t_setup = time.perf_counter()
         ctx = gl.create_context()
-        scenes = self._load_scenes()
         facts = {name: compute_facts(s) for name, s in scenes.items()}
         write_manifest(self.run_dir, ctx, cfg, scenes, facts)
         if cfg.out is None or self.run_dir.parent.name == "runs":
             plan.point_latest(self.run_dir)
         renderer = ctx.info.get("GL_RENDERER", "")
-        jobs = plan.make_jobs(cfg, scenes)
-        existing = plan.existing_rows(self.run_dir)
+        existing = self.existing
         self.kept = plan.merge_existing(self.run_dir, existing, [self._job_identity(scenes[j.scene], j) for j in jobs])
         if self.kept:
             self.log(f"gibench: {self.run_dir}: keeping {len(self.kept)} row(s) of earlier runs "
                      f"(other methods, resolutions or parameters)")
         invocation = plan.invocation_hash(cfg, scenes)
         resumable = self.state.resumable(existing, invocation, cfg.force)
-        self.state.start(invocation)
+        self.state.start(invocation, len(jobs))
 
         progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr) if cfg.progress else None
         references = ReferenceProvider(self.run_dir, cfg, self.log) if cfg.references else None
@@ -161,8 +198,10 @@ class Runner:
             references.finish()
             self.phases["references"] += references.seconds["references"]
             self.phases["metrics"] += references.seconds["metrics"]
+        self.folder.check()
         df = store.save_results(self.run_dir, self.kept + self.rows)
         record_phases(self.run_dir, self.phases, self.shared_summary, self.rows)
+        self.folder.check()   # the manifest's phases went nowhere if the folder was replaced meanwhile
         self.state.finish()
         write_summary(self.run_dir)
         return df
@@ -193,20 +232,25 @@ class Runner:
 
     def record(self, row: dict) -> None:
         """A row is done: save the table, mark it in the run state (the one place either happens)."""
+        self.folder.check()
         self.save()
         self.state.mark_done(row)
 
     def _run_row(self, ctx, scene, facts, view, planned) -> dict:
         if planned["done"]:
             return planned["row"]
-        gpu = self._scene_gpu(ctx, scene, facts)
-        shared, build = self.shared.get(ctx, gpu, self.cfg, view, planned["cls"])
+        with cluster.timing_lock() as wait:   # one timed row per host, whichever gibench process renders it
+            gpu = self._scene_gpu(ctx, scene, facts)
+            shared, build = self.shared.get(ctx, gpu, self.cfg, view, planned["cls"])
+            outcome = render_outcome(ctx, gpu, self.cfg, planned["cls"], scene, facts, view, planned["params"],
+                                     shared=shared)
         if build is not None:
             self.account_shared(build)
-        outcome = render_outcome(ctx, gpu, self.cfg, planned["cls"], scene, facts, view, planned["params"],
-                                 shared=shared)
+        if "measured" in outcome:
+            outcome["measured"]["timing_lock_wait_ms"] = wait.seconds * 1e3
         row = self.finish_row(planned, outcome)
         row["_shared_seconds"] = build.seconds if build is not None else 0.0   # the view's, not the row's own time
+        row["_lock_wait_seconds"] = wait.seconds   # another process's turn, not the row's own time
         return row
 
     def account_shared(self, build) -> None:
@@ -309,9 +353,10 @@ class Runner:
         are phases of their own. `harness_overhead` = the harness's part / the row's time."""
         reference_s = float(row.pop("_reference_seconds", 0.0))
         shared_s = float(row.pop("_shared_seconds", 0.0))   # the view's shared passes: timing + precompute
+        wait_s = float(row.pop("_lock_wait_seconds", 0.0))
         if row.get("status") != Status.OK:
             return
-        self.account_method(row, seconds - reference_s - shared_s)
+        self.account_method(row, seconds - reference_s - shared_s - wait_s)
 
     def account_method(self, row: dict, row_s: float) -> None:
         """Charge a rendered row's prepare and frames to their phases, the rest of `row_s` to the harness."""
@@ -331,6 +376,11 @@ class Runner:
         if total and c["ok"] == 0 and c["failed"] == 0:
             msg += " (nothing re-run: every row was unchanged)"
         return msg
+
+
+def _interrupt(signum, frame):
+    """SIGTERM as Ctrl-C: the run stops between rows' saves and says how to resume (bench.cli)."""
+    raise KeyboardInterrupt
 
 
 def run(cfg: RunConfig, log=print):

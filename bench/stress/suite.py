@@ -63,8 +63,10 @@ exhaust the machine).
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
+import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -75,14 +77,14 @@ import pandas as pd
 from bench.gl import create_context, gl_info
 from bench.model.corpus import load_scene
 from bench.model.imageio import write_exr
-from bench.model.scene import Scene, SceneError
+from bench.model.scene import Scene, SceneError, check_path_name
 from bench.protocol import results as store
 from bench.protocol.method import resolve_params
 from bench.protocol.registry import load_method
 from bench.protocol.versioning import git_commit
 from bench.protocol.vocabulary import REFERENCE_COMPONENTS, Status, failure_reason
 from bench.run.manifest import package_versions
-from bench.run.plan import default_run_dir, prepare_run_dir
+from bench.run.plan import RunFolderLock, default_run_dir, prepare_run_dir
 from bench.stress import fuzz as stress_fuzz
 from bench.stress.case import CaseResult, run_case
 from bench.stress.figures import (error_of, image_changes, mean_change, pixel_counts, reference_mean_noise,
@@ -125,8 +127,11 @@ class StressConfig:
     families: list | None = None                # None: all of FAMILIES
 
     def resolve(self) -> "StressConfig":
+        """Fill the defaults and check every value (ValueError, one line): None means the default,
+        never 0 or an empty list."""
         w, h = QUICK_RESOLUTION if self.quick else FULL_RESOLUTION
-        self.width, self.height = int(self.width or w), int(self.height or h)
+        self.width = int(w if self.width is None else self.width)
+        self.height = int(h if self.height is None else self.height)
         for name, value in (("width", self.width), ("height", self.height)):
             if not 8 <= value <= 8192:
                 raise ValueError(f"{name}={value} outside [8, 8192]")
@@ -137,8 +142,27 @@ class StressConfig:
         self.isolate = self.isolate or ("none" if self.quick else "params")
         if self.isolate not in ("none", "params", "all"):
             raise ValueError(f"--isolate {self.isolate!r} is not one of none, params, all")
+        if not (isinstance(self.case_timeout, (int, float)) and 0 < self.case_timeout < float("inf")):
+            raise ValueError(f"--timeout {self.case_timeout!r} must be a number of seconds above 0")
         if self.fuzz_examples is None:
             self.fuzz_examples = 50 if self.quick else 500
+        if not (isinstance(self.fuzz_examples, int) and self.fuzz_examples >= 1):
+            raise ValueError(f"--fuzz-examples {self.fuzz_examples!r} must be an integer >= 1")
+        if not (isinstance(self.seed, int) and self.seed >= 0):
+            raise ValueError(f"--seed {self.seed!r} must be an integer >= 0")
+        for what, names in (("scene", [s for s in self.scenes if isinstance(s, str)]),
+                            ("method", [m for m in self.methods if isinstance(m, str)]),
+                            ("view", list(self.views or ())), ("family", list(self.families or ()))):
+            repeated = sorted({n for n in names if names.count(n) > 1})
+            if repeated:
+                raise ValueError(f"{what} {repeated[0]!r} is given twice")
+            if what in ("method", "view"):   # folders of the run: images/<scene>/<variant>/<method>
+                for name in names:
+                    check_path_name(name, f"{what} name")
+        if self.views is not None and not self.views:
+            raise ValueError("--views: no view given")
+        if self.families is not None and not self.families:
+            raise ValueError("--only: no family given")
         unknown = sorted(set(self.families or ()) - set(FAMILIES))
         if unknown:
             raise ValueError(f"--only: unknown famil{'y' if len(unknown) == 1 else 'ies'} {', '.join(unknown)} "
@@ -163,6 +187,7 @@ class StressSuite:
             stamp = default_run_dir(Path("runs"))
             self.run_dir = stamp.with_name("stress-" + stamp.name)
         prepare_run_dir(self.run_dir)
+        self.lock = RunFolderLock(self.run_dir)   # one owner of the folder, as a run's
         self.rows: list[dict] = []
         self.references_off: str | None = None if cfg.references else "disabled (--no-reference)"
         self.fuzz: dict | None = None
@@ -267,6 +292,13 @@ class StressSuite:
 
     # -------------------------------------------------------------- main loop
     def run(self) -> pd.DataFrame:
+        self.lock.acquire()
+        try:
+            return self._run()
+        finally:
+            self.lock.release()
+
+    def _run(self) -> pd.DataFrame:
         cfg = self.cfg
         ctx = create_context()
         methods = self._methods()
@@ -341,7 +373,7 @@ class StressSuite:
         base_res = base_entry[0] if base_entry else None
         if res.images is not None:
             row.update(pixel_counts(res.images["direct"], res.images["indirect"]))
-            row["image_dir"] = self._save_images(f"images/{scene.name}/{variant_name}/{mname}".replace(":", "_"),
+            row["image_dir"] = self._save_images(f"images/{scene.name}/{folder_name(variant_name)}/{mname}",
                                                  res.images)
             if compare_image and base_res is not None and base_res.images is not None:
                 row.update(image_changes(res.images, base_res.images))
@@ -506,6 +538,16 @@ def summary_text(df: pd.DataFrame) -> str:
         where = f"{r['scene']}/{r['perturbation']}" if r["scene"] != "-" else str(r["perturbation"])
         lines.append(f"FAIL {where} {r['target']} {r['name']}: {r['note'] or r['status']}")
     return "\n".join(lines)
+
+
+def folder_name(text: str) -> str:
+    """A perturbation's name as a folder: a parameter's name and value come from a plugin's
+    declarations, so anything outside the path-safe set is replaced and a hash of the whole name
+    keeps two names apart (`params:mode=/../x` stays inside the run folder)."""
+    safe = re.sub(r"[^A-Za-z0-9_.+=-]", "_", text).replace("..", "_")
+    if safe == text.replace(":", "_"):
+        return safe
+    return f"{safe[:60]}@{hashlib.sha256(text.encode()).hexdigest()[:8]}"
 
 
 def run_stress(cfg: StressConfig, log=print) -> tuple[pd.DataFrame, StressSuite]:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import inspect
 import json
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -123,8 +124,8 @@ def _check_options(gen: _Generator, options: dict) -> dict:
             names = ", ".join(allowed) or "none"
             raise SceneError(f"scene '{gen.name}' has no option '{key}' (options: {names})")
         default = allowed[key]
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise SceneError(f"scene '{gen.name}': option {key}={value!r} must be a number")
+        if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+            raise SceneError(f"scene '{gen.name}': option {key}={value!r} must be a finite number")
         if isinstance(default, int) and not isinstance(default, bool):
             if float(value) != int(value):
                 raise SceneError(f"scene '{gen.name}': option {key}={value!r} must be an integer")
