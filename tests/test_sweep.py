@@ -183,12 +183,12 @@ def test_ladder_labels_name_the_default_rung_by_the_method():
     # a ladder's rungs all differ: the registered defaults, as the run's manifest records them, pick the bare label
     from bench.protocol.registry import load_method
     from bench.run.manifest import method_declaration
-    rungs = [{"vpl_count": 16}, {"vpl_count": 64}, {"vpl_count": 256}, {"vpl_count": 1024}]
+    rungs = [{"vpl_count": 64}, {"vpl_count": 256}, {"vpl_count": 1024}, {"vpl_count": 4096}]   # default: 1024
     df = pd.DataFrame({"method": ["ir_unshadowed"] * 4,
                        "params": [json.dumps(dict(p, clamp_distance_rel=1e-4)) for p in rungs]})
     manifest = json.loads(json.dumps({"methods": {"ir_unshadowed": method_declaration(load_method("ir_unshadowed"))}}))
-    assert variant_labels(df, declared_defaults(manifest)).tolist() == ["ir_unshadowed vpl_count=16", "ir_unshadowed vpl_count=64",
-                                           "ir_unshadowed", "ir_unshadowed vpl_count=1024"]
+    assert variant_labels(df, declared_defaults(manifest)).tolist() == ["ir_unshadowed vpl_count=64", "ir_unshadowed vpl_count=256",
+                                           "ir_unshadowed", "ir_unshadowed vpl_count=4096"]
 
 
 def _ladder_run(folder, manifest: dict):

@@ -48,6 +48,7 @@ KNOWN_NEEDS = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
 RSM_RESOLUTION = 128   # the shared RSM's tile side
 
 # Cube faces in the order shadow.glsl selects them: +X, -X, +Y, -Y, +Z, -Z (axis, up).
+WIDE_SPOT_CUTOFF_DEG = 45.0   # a spot wider than this gets cube-face layers (plan_light_layers)
 _CUBE_FACES = (((1, 0, 0), (0, 1, 0)), ((-1, 0, 0), (0, 1, 0)), ((0, 1, 0), (0, 0, 1)),
                ((0, -1, 0), (0, 0, 1)), ((0, 0, 1), (0, 1, 0)), ((0, 0, -1), (0, 1, 0)))
 
@@ -76,14 +77,23 @@ class LightLayer:
 
 
 def plan_light_layers(gpu: GpuScene, resolution: int) -> tuple[list[LightLayer], list[int], list[int]]:
-    """The shadow/RSM layers of every light: point -> 6 cube faces, spot -> 1, directional -> 1."""
+    """The shadow/RSM layers of every light: point -> 6 cube faces, spot -> 1 perspective layer
+    (6 cube faces when its cutoff is wider than WIDE_SPOT_CUTOFF_DEG), directional -> 1.
+
+    A single perspective layer over a cone of half-angle c has texels tan(c) times wider at its
+    centre than a cube face's (tan 45 deg = 1), so past 45 degrees the cube is finer everywhere:
+    cornell_box's 85-degree spot had one 170-degree layer whose central texel covered 0.12 m^2 of
+    floor (35 cm): its shadow lines and every RSM VPL under the light were that coarse. A light
+    with six layers is looked up as a cube by the shaders (shadow.glsl), whatever its kind; the
+    spot's falloff zeroes the faces' texels outside its cone."""
     layers: list[LightLayer] = []
     first, count = [], []
     R = gpu.radius
     center = np.asarray(gpu.facts.scene_center) - gpu.origin
     for i, light in enumerate(gpu.scene.lights):
         first.append(len(layers))
-        if isinstance(light, PointLight):
+        wide_spot = isinstance(light, SpotLight) and light.cutoff_angle_deg > WIDE_SPOT_CUTOFF_DEG
+        if isinstance(light, PointLight) or wide_spot:
             pos = light.position - gpu.origin
             far = np.linalg.norm(pos - center) + R * 1.01
             near = max(1e-5 * far, 1e-6)

@@ -28,8 +28,13 @@ contribution varies fast, coarse sampling far away (the paper's shell splatting)
 split into M x M interleaved sub-buffers and each surfel goes to one of them per level (hashed,
 weight M^2, so the expectation is the full sum). A receiver adds the unshadowed transfer
 
-    E(x) += B_side(y) / pi <n_x, w>+ |<n_y, w>| A / max(eps, |x - y|)^2
+    E(x) += B_side(y) / pi <n_x, w>+ |<n_y, w>| A / d2
 
+with d2 the near field of a surfel of area A at distance d (bench/gl/near_field.py, shared with
+the VPL methods): by default max(d^2, A / pi), the clamp at the surfel's own radius, so a surfel
+never lights a receiver more than its exitance B (the point term's 1/d^2 gave sponza spikes:
+relMSE 0.92-1.47 by surfel count, 20-41% of the squared error in 20 pixels; with the bound
+0.41-0.48; NOTES.md); `max(eps, d)^2` (clamp) and `d^2 + A / pi` (disc_element) remain options.
 (Lambertian emission of the side of the surfel's shading normal the receiver is on, n_y its
 geometric normal: Mitsuba's twosided diffuse with shading normals, as `manylights`),
 only within the surfel's cut radius r = R sqrt(lum(B) / (threshold lum(B_max))): the distance at
@@ -65,19 +70,21 @@ emission `lambert`) as surfel_count grows (tests/methods/test_dss.py).
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
-| parameter         | default  | range          | meaning |
-|-------------------|----------|----------------|---|
-| surfel_count      | 8192     | 1 .. 100000000 | target surfels over the whole scene (target area = total area / count); small triangles still give one surfel each (quality knob; sweep 1024, 4096, 16384, 65536) |
-| threshold         | 0.002    | 0.0 .. 100.0   | cut radius: contribution per unit area below threshold x the brightest surfel's at one scene radius (0: no cut) (quality knob; sweep 0.05, 0.01, 0.002, 0.0005) |
-| irradiance_splits | 1        | 0 .. 3         | surfel irradiance: mean over the 4^k centroids of the sub-triangle's k-fold subdivision (0: the centroid alone) (quality knob) |
-| levels            | 3        | 1 .. 6         | resolution levels of the splat framebuffer |
-| interleave        | 2        | 1 .. 8         | M: M x M interleaved sub-buffers per level (1: none) |
-| shell_pixels      | 8.0      | 0.25 .. 256.0  | S: level 0 takes receivers within 2 S pixel footprints of a surfel, level l those in [2^l, 2^(l+1)) S (splat cost grows as S^2) (quality knob; sweep 2.0, 4.0, 8.0, 16.0) |
-| blur_radius       | 1        | 0 .. 8         | blur window (2 b + 1)^2 in level pixels |
-| blur_normal_cos   | 0.9      | -1.0 .. 1.0    | blur/upsample: minimum cosine between receiver normals |
-| blur_plane_pixels | 1.0      | 0.0 .. 10000.0 | blur/upsample: maximum tangent-plane distance in pixel footprints |
-| eps_rel           | 0.0001   | 1e-07 .. 1.0   | distance clamp eps relative to the scene radius |
-| max_surfels       | 16000000 | 1 .. 100000000 | skip a scene whose surfel count exceeds this |
+| parameter         | default   | range                          | meaning |
+|-------------------|-----------|--------------------------------|---|
+| surfel_count      | 8192      | 1 .. 100000000                 | target surfels over the whole scene (target area = total area / count); small triangles still give one surfel each (quality knob; sweep 1024, 4096, 16384, 65536) |
+| threshold         | 0.002     | 0.0 .. 100.0                   | cut radius: contribution per unit area below threshold x the brightest surfel's at one scene radius (0: no cut) (quality knob; sweep 0.05, 0.01, 0.002, 0.0005) |
+| irradiance_splits | 1         | 0 .. 3                         | surfel irradiance: mean over the 4^k centroids of the sub-triangle's k-fold subdivision (0: the centroid alone) (quality knob) |
+| levels            | 3         | 1 .. 6                         | resolution levels of the splat framebuffer |
+| interleave        | 2         | 1 .. 8                         | M: M x M interleaved sub-buffers per level (1: none) |
+| shell_pixels      | 8.0       | 0.25 .. 256.0                  | S: level 0 takes receivers within 2 S pixel footprints of a surfel, level l those in [2^l, 2^(l+1)) S (splat cost grows as S^2) (quality knob; sweep 2.0, 4.0, 8.0, 16.0) |
+| blur_radius       | 1         | 0 .. 8                         | blur window (2 b + 1)^2 in level pixels |
+| blur_normal_cos   | 0.9       | -1.0 .. 1.0                    | blur/upsample: minimum cosine between receiver normals |
+| blur_plane_pixels | 1.0       | 0.0 .. 10000.0                 | blur/upsample: maximum tangent-plane distance in pixel footprints |
+| eps_rel           | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps relative to the scene radius |
+| near_field        | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
+| near_field_scale  | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
+| max_surfels       | 16000000  | 1 .. 100000000                 | skip a scene whose surfel count exceeds this |
 <!-- end of parameters -->
 
 Quality ladder (`gibench run`): (surfel_count, threshold) = (2048, 0.01), (8192, 0.002) (default),
@@ -111,6 +118,8 @@ import moderngl
 import numpy as np
 
 from bench.gl import load_program, set_uniforms
+from bench.gl.near_field import (NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, NEAR_FIELDS, NEAR_SCALE_DEFAULT,
+                                   NEAR_SCALE_DOC, NEAR_SCALE_RANGE, near_field_defines)
 from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
@@ -214,6 +223,8 @@ class DeepScreenSpace(MethodBase):
         "blur_plane_pixels": Param(1.0, "blur/upsample: maximum tangent-plane distance in pixel footprints",
                                    0.0, 1e4),
         "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
+        "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
+        "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
         "max_surfels": Param(16_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
     }
 
@@ -273,7 +284,8 @@ class DeepScreenSpace(MethodBase):
         self.target_area = target_area
 
         self.deinterleave = load_program(ctx, SHADERS / "deinterleave.glsl", defines)
-        self.splat = load_program(ctx, SHADERS / "splat.glsl", defines)
+        self.splat = load_program(ctx, SHADERS / "splat.glsl",
+                                  dict(defines, **near_field_defines(params["near_field"], params["near_field_scale"])))
         self.unshuffle = load_program(ctx, SHADERS / "unshuffle_blur.glsl", defines)
         self.compose = load_program(ctx, SHADERS / "compose.glsl", defines)
         self.deinterleave_vao = ctx.vertex_array(self.deinterleave, [])

@@ -15,7 +15,9 @@ Per frame:
    (MIN blending, no depth buffer, so the test does not depend on depth-buffer precision).
    The hemicube's centre is lifted 1e-4 scene radii off the VPL's surface along its normal,
    so that surface (flat, or curving away) lands strictly below the side faces' horizon.
-3. `gather`: `ir_unshadowed`'s sum, each VPL term multiplied by its visibility: the receiver
+3. `gather`: `ir_unshadowed`'s sum (with its near field: each VPL's 1/d^2 bounded at the radius
+   of the area it stands for, bench/gl/near_field.py; see ir_unshadowed's manual), each VPL
+   term multiplied by its visibility: the receiver
    is offset along its geometric normal by `normal_offset` texel footprints (more at grazing
    angles) and compared with the stored distance plus one texel footprint.
 
@@ -39,13 +41,15 @@ has the measurements).
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
-| parameter          | default  | range            | meaning |
-|--------------------|----------|------------------|---|
-| vpl_count          | 256      | 1 .. 8192        | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
-| shadow_resolution  | 64       | 8 .. 512         | hemicube face resolution of each VPL's shadow map (texels) (quality knob; sweep 32, 64, 128) |
-| normal_offset      | 0.5      | 0.0 .. 16.0      | receiver offset along its geometric normal for the VPL shadow test, in hemicube texel footprints at the receiver |
-| clamp_distance_rel | 0.0001   | 1e-07 .. 1.0     | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
-| max_triangle_draws | 10000000 | 1 .. 10000000000 | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
+| parameter          | default   | range                          | meaning |
+|--------------------|-----------|--------------------------------|---|
+| vpl_count          | 256       | 1 .. 8192                      | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
+| shadow_resolution  | 64        | 8 .. 512                       | hemicube face resolution of each VPL's shadow map (texels) (quality knob; sweep 32, 64, 128) |
+| normal_offset      | 0.5       | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VPL shadow test, in hemicube texel footprints at the receiver |
+| clamp_distance_rel | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| near_field         | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
+| near_field_scale   | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
+| max_triangle_draws | 10000000  | 1 .. 10000000000               | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
 <!-- end of parameters -->
 
 The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels; a combination larger than
@@ -78,6 +82,8 @@ from bench.gl import load_program, set_uniforms
 from bench.gl.context import park
 from bench.protocol.method import FrameOutput, MethodBase, Param, ParamError, SkipRow
 from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
+from bench.gl.near_field import (NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, NEAR_FIELDS, NEAR_SCALE_DEFAULT,
+                                   NEAR_SCALE_DOC, NEAR_SCALE_RANGE, near_field_defines)
 from bench.gl.vpl import VPL_DEFINES, RsmVplSampler, VplGather
 
 SHADERS = Path(__file__).parent / "shaders"
@@ -159,6 +165,8 @@ class InstantRadiosityShadowed(MethodBase):
         "normal_offset": Param(0.5, "receiver offset along its geometric normal for the VPL shadow test, "
                                     "in hemicube texel footprints at the receiver", 0.0, 16.0),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
+        "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
+        "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
         "max_triangle_draws": Param(10_000_000, "skip the row when vpl_count x triangles exceeds this (the "
                                                 "hemicubes draw the whole scene once per VPL every frame)",
                                     1, 10_000_000_000),
@@ -176,7 +184,8 @@ class InstantRadiosityShadowed(MethodBase):
         self.hemicubes = HemicubeAtlas(gpu, params["vpl_count"], params["shadow_resolution"])
         self.sampler = RsmVplSampler(gpu.ctx, params["vpl_count"])
         self.gather = VplGather(gpu.ctx, view.width, view.height, SHADERS / "gather.glsl",
-                                 dict(SHADOW_DEFINES, VPL_SHADOWS=1))
+                                 dict(SHADOW_DEFINES, VPL_SHADOWS=1,
+                                      **near_field_defines(params["near_field"], params["near_field_scale"])))
 
     def _bind_visibility(self, program, unit: int) -> int:
         set_uniforms(program, u_normal_offset=float(self.params["normal_offset"]))

@@ -28,30 +28,44 @@ same VPLs and transfer term serve `ir_shadowed`, `val_clustered` and `visibility
 
 The RSM samples the surfaces the light sees, i.e. exactly the shadowed-lit surfaces, so with
 many VPLs the result converges to `manylights` (emission lambert) up to the RSM's
-discretisation (texel-centre positions, 128^2 texels per light layer). The clamp eps tames the
-1/d^2 singularity of VPLs close to the receiver (bright splotches at low N) at the price of a
-bias near corners; the default is tiny, i.e. almost unbiased and noisy there: a few VPLs within
-centimetres of a receiver carry most of the relMSE on the real scenes. `near_field =
-disc_element` replaces the clamp by the form factor of a disc of the area A_k the VPL stands for
-(its RSM texel's footprint on the surface, rsm.glsl's flux.a, times Q / (N q_i)): d^2 =
-|y_k - x|^2 + A_k / pi (Bunnell 2005, as FLC's disc element). It takes the spikes out, but
-each VPL stands for 1/N of the lit surface, and the disc's near field darkens the bounce. The
-same VPLs and term make the spikes of `ir_shadowed`, `val_clustered` and `visibility_gates`;
-which near field the VPL family should use by default is open, the default stays the
-almost-unbiased clamp (NOTES.md has the measurements).
+discretisation (texel-centre positions, 128^2 texels per light layer).
+
+Near field (bench/gl/near_field.py, shared by every VPL method and DSS). The point term's
+1/d^2 is unbounded: a VPL a few millimetres from a receiver lit it thousands of times over (the
+old default, a clamp max(eps, d) with eps = 1e-4 of the scene radius, gave relMSE 6.0 on sponza
+and 8.4 on lost_empire at 256 VPLs, 60-86% of the squared error in 20 pixels). Each VPL stands
+for the area A_k of lit surface its RSM texel covers divided by N pdf (rsm.glsl's flux.a times
+Q / (N q_i)); the default bound `near_field=footprint` clamps the distance at the radius of that
+area, d^2 >= s A_k / pi with s = `near_field_scale` = 1: a VPL then never lights a receiver more
+than the exitance Phi_k / A_k of the surface it samples, which is scale-invariant (A_k scales
+with the scene) and vanishes as N grows (A_k ~ 1/N: the estimator stays consistent). It was
+chosen from a sweep over the corpus (studies/vpl_near_field.py; NOTES.md has the table): it
+removes the spikes like the disc element (d^2 + A_k / pi, which darkens every receiver within a
+few disc radii: sponza's bounce at 0.82, sphere_inside at 0.98) with the best relMSE on the real
+scenes but sponza, and darkens less. `clamp` and `disc_element` remain options.
+
+Operating point. Importance sampling by flux spreads the VPLs over every lit surface, not over
+the view: on sponza at 256 VPLs the arcade beside the camera is lit by a handful of VPLs, each
+1/256 of the sun's bounce (relMSE 0.76 mean over 3 seeds, 0.23 to 1.64 by seed, i.e. at best the
+error of no indirect at all), at 1024 by four times as many (0.15, every seed). The default is
+1024 VPLs (the count of the VAL paper's instant radiosity), the ladder 256, 1024, 4096.
 
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
-| parameter          | default | range               | meaning |
-|--------------------|---------|---------------------|---|
-| vpl_count          | 256     | 1 .. 65536          | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024, 4096) |
-| clamp_distance_rel | 0.0001  | 1e-07 .. 1.0        | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
-| near_field         | clamp   | disc_element, clamp | the squared distance d^2 of a VPL's transfer, d the VPL-receiver distance: disc_element d^2 + A / pi (at least eps^2), A the area the VPL stands for (its RSM texel's footprint / (N pdf)); clamp max(eps, d)^2 only |
+| parameter          | default   | range                          | meaning |
+|--------------------|-----------|--------------------------------|---|
+| vpl_count          | 1024      | 1 .. 65536                     | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024, 4096) |
+| clamp_distance_rel | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| near_field         | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
+| near_field_scale   | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
 <!-- end of parameters -->
 
-Quality ladder (`gibench run`): vpl_count 16, 64, 256 (default), 1024: the gather costs VPLs x
-pixels and the variance falls as 1 / VPLs, so the count is the knob a user turns.
+Quality ladder (`gibench run`): vpl_count 256, 1024 (default), 4096: the gather costs VPLs x
+pixels and the variance falls as 1 / VPLs, so the count is the knob a user turns. Fewer than 256
+darken the bounce (the footprint bound grows as 1 / N: sponza's mean at 64 VPLs is 0.71), which
+lowers relMSE on the views where variance dominates: a rung below 256 would buy error with
+more VPLs.
 
 Example:
 
@@ -66,28 +80,20 @@ from __future__ import annotations
 from bench.protocol.method import FrameOutput, MethodBase, Param
 
 from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC, RsmVplSampler, VplGather
-
-NEAR_FIELD_DOC = ("the squared distance d^2 of a VPL's transfer, d the VPL-receiver distance: disc_element "
-                  "d^2 + A / pi (at least eps^2), A the area the VPL stands for (its RSM texel's footprint / "
-                  "(N pdf)); clamp max(eps, d)^2 only")
-NEAR_FIELD_CHOICES = ("disc_element", "clamp")
-
-
-def near_field_defines(params: dict) -> dict:
-    """The gather's VPL_NEAR_DISC define for a method's `near_field` parameter."""
-    return {"VPL_NEAR_DISC": int(params["near_field"] == "disc_element")}
-
+from bench.gl.near_field import (NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, NEAR_FIELDS, NEAR_SCALE_DEFAULT,
+                                   NEAR_SCALE_DOC, NEAR_SCALE_RANGE, near_field_defines)
 
 class InstantRadiosityUnshadowed(MethodBase):
     name = "ir_unshadowed"
     summary = "Instant radiosity, VPLs importance-sampled from the RSM, no indirect visibility"
-    ladder = ({"vpl_count": 16}, {"vpl_count": 64}, {}, {"vpl_count": 1024})
+    ladder = ({"vpl_count": 256}, {}, {"vpl_count": 4096})
     stages = ("vpl_sample", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
     params = {
-        "vpl_count": Param(256, VPL_COUNT_DOC, 1, 65536, quality=True, sweep=(16, 64, 256, 1024, 4096)),
+        "vpl_count": Param(1024, VPL_COUNT_DOC, 1, 65536, quality=True, sweep=(16, 64, 256, 1024, 4096)),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
-        "near_field": Param("clamp", NEAR_FIELD_DOC, choices=NEAR_FIELD_CHOICES),
+        "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
+        "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
     }
 
     def prepare(self, gpu, scene, facts, params, view) -> None:
@@ -95,7 +101,8 @@ class InstantRadiosityUnshadowed(MethodBase):
         self.ctx = gpu.ctx
         self.eps = params["clamp_distance_rel"] * gpu.radius
         self.sampler = RsmVplSampler(gpu.ctx, params["vpl_count"])
-        self.gather = VplGather(gpu.ctx, view.width, view.height, defines=near_field_defines(params))
+        self.gather = VplGather(gpu.ctx, view.width, view.height, 
+                               defines=near_field_defines(params["near_field"], params["near_field_scale"]))
 
     def render(self, frame, prof) -> FrameOutput:
         passes = frame.passes

@@ -25,7 +25,8 @@ Per frame (stages, after the shared `gbuffer_shadow`, `direct_light`, `rsm`):
    cluster C whose cone through one of C's gates meets the cluster's bounding sphere (brute
    force over VPLs, as in the paper; indirect dispatch over the clusters found).
 4. `gather` (IL): each pixel sums its cluster's VPLs with the Lambertian VPL term of
-   ir_unshadowed; a VPL from another visibility cluster C counts only if the segment VPL ->
+   ir_unshadowed (with its near field: each VPL's 1/d^2 bounded at the radius of the area it
+   stands for, bench/gl/near_field.py); a VPL from another visibility cluster C counts only if the segment VPL ->
    pixel, leaving C through the first of C's gates it crosses, enters the pixel's cluster, or
    walks on, cluster to cluster through the first gate crossed each time, and enters it within
    `gate_hops` gates.
@@ -133,25 +134,36 @@ rooms the same VPLs summed with exact visibility; an open scene whose cameras an
 outside its bounding box (lit_wall_corner) is skipped. The excess inside merged, not quite
 convex clusters is the paper's own over-estimate (VI.B).
 
-Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024, the IR baselines' VPL counts,
-so each rung compares with ir_shadowed at equal VPLs: the gather and the light assignment cost
+On the real scenes (NOTES.md) the topology at the default 64 voxels finds one visibility
+cluster in sibenik's nave (the image mean 1.29 of the visible bounce, as the unshadowed VPLs')
+and over-closes lost_empire's (0.69), so its relMSE there is not below that of no indirect at
+all; on cornell_box, holodeck and conference its mean lies between the visible and the
+unshadowed bounce.
+
+Quality ladder (`gibench run`): vpl_count 256, 1024 (default), 2048 (4096 costs 5-7 s a frame on
+the real scenes at 320 x 180): at 256 and 1024 a rung compares with the unshadowed VPLs and with
+ir_shadowed at equal count. The default is 1024 for the reason ir_unshadowed's is (its manual: at 256 the VPLs
+importance-sampled over sponza's lit surface leave the view to a handful; the gates' relMSE
+there 4.7 at 256, 1.1 at 1024, NOTES.md). The gather and the light assignment cost
 VPLs x gates, the topology (untimed) is shared by all rungs; voxel_resolution is not a rung (it
 changes the untimed precomputation only, and at 32 closes rooms' second door).
 
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
-| parameter           | default | range         | meaning |
-|---------------------|---------|---------------|---|
-| vpl_count           | 256     | 1 .. 65536    | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
-| voxel_resolution    | 64      | 16 .. 256     | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
-| alpha_percent       | 20.0    | 0.0 .. 1000.0 | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
-| merge_gate_fraction | 0.75    | 0.0 .. 2.0    | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
-| gate_radius_scale   | 1.0     | 0.0 .. 8.0    | gate size multiplier (1: the polygon of the opening, or the maximal-ball disk in open space; 0: no light crosses gates) |
-| gate_hops           | 4       | 1 .. 16       | gates a VPL's light may cross on its way to a pixel (1: into a neighbouring cluster only, paper Fig. 11) |
-| use_gates           | true    | bool          | false: indirect light stays inside visibility clusters (paper VI.B) |
-| depth_slices        | 16      | 1 .. 256      | clustered-shading depth slices, exponential in view depth |
-| clamp_distance_rel  | 0.0001  | 1e-07 .. 1.0  | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| parameter           | default   | range                          | meaning |
+|---------------------|-----------|--------------------------------|---|
+| vpl_count           | 1024      | 1 .. 65536                     | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 64, 256, 1024, 4096) |
+| voxel_resolution    | 64        | 16 .. 256                      | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
+| alpha_percent       | 20.0      | 0.0 .. 1000.0                  | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
+| merge_gate_fraction | 0.75      | 0.0 .. 2.0                     | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
+| gate_radius_scale   | 1.0       | 0.0 .. 8.0                     | gate size multiplier (1: the polygon of the opening, or the maximal-ball disk in open space; 0: no light crosses gates) |
+| gate_hops           | 4         | 1 .. 16                        | gates a VPL's light may cross on its way to a pixel (1: into a neighbouring cluster only, paper Fig. 11) |
+| use_gates           | true      | bool                           | false: indirect light stays inside visibility clusters (paper VI.B) |
+| depth_slices        | 16        | 1 .. 256                       | clustered-shading depth slices, exponential in view depth |
+| clamp_distance_rel  | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| near_field          | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
+| near_field_scale    | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
 <!-- end of parameters -->
 
 Example: `gibench run --scenes rooms --methods visibility_gates,ir_shadowed --res 128x96 --param
@@ -177,6 +189,8 @@ from bench.gl import load_compute, load_program, set_uniforms
 from bench.gl.context import LOOP_CHUNK, loop_chunks, park
 from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
+from bench.gl.near_field import (NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, NEAR_FIELDS, NEAR_SCALE_DEFAULT,
+                                   NEAR_SCALE_DOC, NEAR_SCALE_RANGE, near_field_defines)
 from bench.gl.vpl import VPL_DEFINES, RsmVplSampler
 
 from .gates import MAX_GATE_EDGES
@@ -241,9 +255,9 @@ class VisibilityGates(MethodBase):
     summary = "VPLs with visibility from empty-space topology: quasi-convex clusters joined by gate polygons"
     stages = ("vpl_sample", "geometry_clusters", "light_assignment", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm", "precompute"})
-    ladder = ({"vpl_count": 64}, {}, {"vpl_count": 1024})
+    ladder = ({"vpl_count": 256}, {}, {"vpl_count": 2048})
     params = {
-        "vpl_count": Param(256, VPL_COUNT_DOC, 1, 65536, quality=True, sweep=(16, 64, 256, 1024)),
+        "vpl_count": Param(1024, VPL_COUNT_DOC, 1, 65536, quality=True, sweep=(64, 256, 1024, 4096)),
         "voxel_resolution": Param(64, "voxels along the scene's longest bounding-box side (precomputation)",
                                   16, 256, quality=True, sweep=(32, 64, 128)),
         "alpha_percent": Param(20.0, "skeleton nodes join a visibility cluster when their maximal-ball radius "
@@ -257,6 +271,8 @@ class VisibilityGates(MethodBase):
         "use_gates": Param(True, "false: indirect light stays inside visibility clusters (paper VI.B)"),
         "depth_slices": Param(16, "clustered-shading depth slices, exponential in view depth", 1, 256),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
+        "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
+        "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
     }
 
     def prepare(self, gpu, scene, facts, params, view) -> None:
@@ -329,7 +345,8 @@ class VisibilityGates(MethodBase):
         self.cluster_count = ctx.buffer(reserve=16)
         self.light_masks = ctx.buffer(reserve=capacity * self.words * 4)
 
-        defines = dict(GATE_DEFINES, DEPTH_SLICES=params["depth_slices"], GATE_HOPS=params["gate_hops"])
+        defines = dict(GATE_DEFINES, DEPTH_SLICES=params["depth_slices"], GATE_HOPS=params["gate_hops"],
+                       **near_field_defines(params["near_field"], params["near_field_scale"]))
         self.vpl_cluster_pass = load_compute(ctx, SHADERS / "vpl_clusters.glsl", defines)
         self.cluster_pass = load_compute(ctx, SHADERS / "geometry_clusters.glsl", defines)
         self.dispatch_pass = load_compute(ctx, SHADERS / "dispatch_args.glsl", defines)

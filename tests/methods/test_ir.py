@@ -79,9 +79,11 @@ def segment_blocked(scene, x, y, eps=1e-4):
     return blocked
 
 
-def gather_numpy(g, vpls, eps, blocked=None, near_disc=False):
-    """The gather formula over the read-back VPLs (optionally with a visibility mask; near_disc:
-    the squared distance is max(eps^2, d^2 + A / pi), A the area the VPL stands for)."""
+def gather_numpy(g, vpls, eps, blocked=None, near_disc=False, near="clamp", scale=1.0):
+    """The gather formula over the read-back VPLs (optionally with a visibility mask). The near
+    field (bench/gl/shaders/near_field.glsl), A the area the VPL stands for: clamp max(eps, d)^2,
+    disc_element (or near_disc) max(eps^2, d^2 + A / pi), footprint max(eps^2, d^2, scale A / pi)."""
+    near = "disc_element" if near_disc else near
     m = g["mask"]
     x, nx, rho = g["position"][m].astype(np.float64), g["normal"][m], g["albedo"][m]
     y, ny, flux = (vpls[k].astype(np.float64) for k in ("position", "normal", "flux"))
@@ -90,8 +92,11 @@ def gather_numpy(g, vpls, eps, blocked=None, near_disc=False):
     w = d / dist[..., None]
     cos_x = np.maximum((nx[:, None] * w).sum(-1), 0)
     cos_y = np.maximum(-(ny[None] * w).sum(-1), 0)
-    if near_disc:
-        g_term = cos_x * cos_y / np.maximum(eps ** 2, dist ** 2 + vpls["area"].astype(np.float64)[None] / np.pi)
+    area = vpls["area"].astype(np.float64)[None]
+    if near == "disc_element":
+        g_term = cos_x * cos_y / np.maximum(eps ** 2, dist ** 2 + area / np.pi)
+    elif near == "footprint":
+        g_term = cos_x * cos_y / np.maximum(eps ** 2, np.maximum(dist ** 2, scale * area / np.pi))
     else:
         g_term = cos_x * cos_y / np.maximum(eps, dist) ** 2
     if blocked is not None:
@@ -133,10 +138,28 @@ def test_no_lit_texel_gives_zero(gl_ctx):
 # ----------------------------------------------------------------------------- ir_unshadowed
 def test_unshadowed_gather_matches_numpy(gl_ctx):
     scene = make_open_box()
-    r = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, {"vpl_count": 128}, seed=2)
+    r = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, {"vpl_count": 128, "near_field": "clamp"}, seed=2)
     expected = gather_numpy(r["gbuffer"], r["vpls"], 1e-4 * r["radius"])
     assert expected.max() > 0
     assert np.abs(r["indirect"] - expected).max() <= 1e-5 * expected.max()
+
+
+@pytest.mark.parametrize("scale", [1.0, 0.25])
+def test_default_footprint_near_field_matches_numpy_and_bounds_the_clamp(gl_ctx, scale):
+    """The default near field (footprint): every VPL term with max(d^2, s A / pi), A the area the
+    VPL stands for (the gather against numpy over the same VPLs); never above the clamp's image of
+    the same seed, and each VPL's transfer bounded by the exitance Phi / A of its surface / s."""
+    assert InstantRadiosityUnshadowed.params["near_field"].default == "footprint"
+    scene = make_open_box()
+    params = {"vpl_count": 128} if scale == 1.0 else {"vpl_count": 128, "near_field_scale": scale}
+    near = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, params, seed=2)
+    clamp = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, {"vpl_count": 128, "near_field": "clamp"}, seed=2)
+    assert np.array_equal(near["vpls"]["position"], clamp["vpls"]["position"])
+    expected = gather_numpy(near["gbuffer"], near["vpls"], 1e-4 * near["radius"], near="footprint", scale=scale)
+    assert expected.max() > 0
+    assert np.abs(near["indirect"] - expected).max() <= 1e-5 * expected.max()
+    assert (near["indirect"] <= clamp["indirect"] * (1 + 1e-5) + 1e-9).all()
+    assert near["indirect"].max() < clamp["indirect"].max()
 
 
 def test_vpl_areas_add_up_to_the_lit_surface(gl_ctx):
@@ -187,8 +210,9 @@ def test_unshadowed_converges_to_manylights(gl_ctx):
 # ----------------------------------------------------------------------------- ir_shadowed
 def test_shadowed_equals_unshadowed_without_occluders(gl_ctx):
     scene = make_open_box()
+    same_vpls = {"vpl_count": InstantRadiosityShadowed.params["vpl_count"].default}   # the defaults differ
     for seed in (0, 1):
-        u = run_method(gl_ctx, InstantRadiosityUnshadowed, scene, "main", W, H, {}, frames=1, seed=seed).indirect
+        u = run_method(gl_ctx, InstantRadiosityUnshadowed, scene, "main", W, H, same_vpls, frames=1, seed=seed).indirect
         s = run_method(gl_ctx, InstantRadiosityShadowed, scene, "main", W, H, {}, frames=1, seed=seed).indirect
         assert (s <= u * (1 + 1e-5) + 1e-9).all()
         assert (u - s).sum() / u.sum() < 1e-3
@@ -230,15 +254,20 @@ def test_shadowed_indirect_shadow_behind_occluder(gl_ctx):
 def test_sphere_inside_analytic(gl_ctx):
     """Inside a sphere cos cos / d^2 = 1 / (4 R^2) for any pair of points, so every VPL set
     gives rho^2 I / (pi R^2) (up to the tessellation), and nothing occludes anything: the
-    shadowed result must equal the unshadowed one on this curved, concave surface too."""
+    shadowed result must equal the unshadowed one on this curved, concave surface too. The
+    identity is the point transfer's (near_field=clamp); the default footprint bound takes a
+    little of the light of the points within its radius of a VPL (32 VPLs: a radius of 0.35 R)."""
     scene = load_scene("sphere_inside")
     expected = sphere_inside_indirect()
-    images = [run_method(gl_ctx, cls, scene, "main", W, H, {"vpl_count": 32}, frames=1).indirect
+    point = {"vpl_count": 32, "near_field": "clamp"}
+    images = [run_method(gl_ctx, cls, scene, "main", W, H, point, frames=1).indirect
               for cls in (InstantRadiosityUnshadowed, InstantRadiosityShadowed)]
     for image in images:
         rel = np.abs(image[..., 1] / expected - 1)
         assert np.median(rel) < 0.015 and np.percentile(rel, 95) < 0.04
     assert np.array_equal(images[0], images[1])
+    default = run_method(gl_ctx, InstantRadiosityUnshadowed, scene, "main", W, H, {"vpl_count": 32}, frames=1).indirect
+    assert np.median(np.abs(default[..., 1] / expected - 1)) < 0.015
 
 
 @pytest.mark.parametrize("cls", [InstantRadiosityUnshadowed, InstantRadiosityShadowed])

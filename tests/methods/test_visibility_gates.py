@@ -33,7 +33,7 @@ def default_topology(scene, resolution=None):
 def indirect_ratio(ctx, scene, view="main", seed=0, **params):
     """(mean indirect / ir_shadowed's with the same VPLs, the visibility_gates result)."""
     vg = run_method(ctx, VisibilityGates, scene, view, W, H, params, seed=seed, frames=1)
-    vpl = {"vpl_count": params["vpl_count"]} if "vpl_count" in params else {}
+    vpl = {"vpl_count": params.get("vpl_count", VisibilityGates.params["vpl_count"].default)}   # the defaults differ
     shadowed = run_method(ctx, InstantRadiosityShadowed, scene, view, W, H, vpl, seed=seed, frames=1).indirect
     return vg.indirect.mean() / shadowed.mean(), vg
 
@@ -57,7 +57,7 @@ def render_frame(ctx, scene, params, seed=0, camera="main"):
         vpls = method.sampler.read_vpls()
         vpls["position"] = vpls["position"].astype(np.float64) + gpu.origin
         return {"indirect": read_rgb(out.indirect), "vpls": vpls, "gbuffer": passes.gbuffer.read(),
-                "topology": method.topology, "eps": method.eps}
+                "topology": method.topology, "eps": method.eps, "params": method.params}
     finally:
         method.release()
         passes.release()
@@ -119,8 +119,19 @@ def brute_force(frame, gate_scale=1.0, hops=1):
     return vpl_sum(frame, visible), cx
 
 
+def near_d2(frame, dist, area):
+    """The squared distance of the method's near field (bench/gl/shaders/near_field.glsl)."""
+    eps, p = frame["eps"], frame["params"]
+    if p["near_field"] == "footprint":
+        return np.maximum(eps ** 2, np.maximum(dist ** 2, p["near_field_scale"] * area / np.pi))
+    if p["near_field"] == "disc_element":
+        return np.maximum(eps ** 2, dist ** 2 + area / np.pi)
+    return np.maximum(eps, dist) ** 2
+
+
 def vpl_sum(frame, visible):
-    """rho/pi sum_k Phi_k/pi cos_x cos_k / max(eps, d)^2 over the VPLs with visible[p, k] (float64)."""
+    """rho/pi sum_k Phi_k/pi cos_x cos_k / d2 over the VPLs with visible[p, k] (float64), d2 the
+    method's near field of the distance d (near_d2)."""
     gb, v = frame["gbuffer"], frame["vpls"]
     mask = gb["mask"].ravel()
     x = gb["position"].reshape(-1, 3)[mask].astype(np.float64)
@@ -133,7 +144,8 @@ def vpl_sum(frame, visible):
     w = d / np.maximum(dist, 1e-30)[..., None]
     cos_x = np.einsum("pkc,pc->pk", w, nx)
     cos_y = -np.einsum("pkc,kc->pk", w, ny)
-    term = np.where(visible & (cos_x > 0) & (cos_y > 0), cos_x * cos_y / np.maximum(frame["eps"], dist) ** 2, 0.0)
+    area = v["area"][lit].astype(np.float64)[None]
+    term = np.where(visible & (cos_x > 0) & (cos_y > 0), cos_x * cos_y / near_d2(frame, dist, area), 0.0)
     out = np.zeros((H * W, 3))
     out[mask] = rho * (term @ phi) / np.pi ** 2
     return out.reshape(H, W, 3)
@@ -429,6 +441,8 @@ def test_parameter_tables_match_the_params():
             default, span = rows[name][1], rows[name][2]
             if isinstance(p.default, bool):
                 assert default == str(p.default).lower() and span == "bool", (name, rows[name])
+            elif p.choices is not None:   # the shared near field: a choice, listed as such
+                assert default == p.default and span == ", ".join(p.choices), (name, rows[name])
             else:
                 assert float(default) == p.default, (name, rows[name])
                 low, high = (float(x) for x in span.split(".."))

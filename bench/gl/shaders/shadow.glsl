@@ -1,5 +1,6 @@
 // Shadow-map lookup. Every light owns a few layers of one atlas (point: 6 cube faces, spot: 1
-// perspective, directional: 1 orthographic); each texel stores the light-space metric of the
+// perspective or, wider than 45 degrees, 6 cube faces, directional: 1 orthographic: see
+// bench.gl.passes.plan_light_layers); each texel stores the light-space metric of the
 // nearest surface: distance to the light (point, spot) or depth along the light direction
 // (directional).
 #ifndef SHADOW_GLSL
@@ -25,7 +26,7 @@ float shadow_metric(int i, vec3 p) {
 int shadow_layer_for(int i, vec3 p) {
     Light L = lights[i];
     int first = int(L.angles_layers.z + 0.5);
-    if (light_kind(i) != LIGHT_POINT) return first;
+    if (int(L.angles_layers.w + 0.5) != 6) return first;   // six layers are cube faces
     vec3 v = p - L.position_kind.xyz;
     vec3 a = abs(v);
     if (a.x >= a.y && a.x >= a.z) return first + (v.x > 0.0 ? 0 : 1);

@@ -2,6 +2,7 @@
 // and the RSM texel indexing shared by the CDF passes.
 #ifndef VPL_RECORDS_GLSL
 #define VPL_RECORDS_GLSL
+#include "near_field.glsl"
 
 struct Vpl {
     vec4 position;  // xyz re-centred position of the RSM texel's surface point, w the surface
@@ -27,15 +28,10 @@ ivec2 rsm_atlas_texel(uint i) {
 }
 
 // One VPL's unshadowed Lambertian transfer to receiver x (normal nx):
-//   Phi <n_x, w>+ <n_k, -w>+ / max(eps, |y_k - x|)^2,  w = (y_k - x) / |y_k - x|
+//   Phi <n_x, w>+ <n_k, -w>+ / d2,  w = (y_k - x) / |y_k - x|
 // (the one-bounce radiance is rho_x / pi^2 times the sum over VPLs); zero when either side
-// faces away. Every VPL gather (ir_*, val_clustered, visibility_gates) sums this term.
-// VPL_NEAR_DISC 1 (near_field = disc_element): the squared distance is |y_k - x|^2 + A_k / pi
-// with A_k the area the VPL stands for, the form factor of a disc of that area (Bunnell 2005,
-// as FLC's disc element): the point's beyond a few disc radii, bounded near it.
-#ifndef VPL_NEAR_DISC
-#define VPL_NEAR_DISC 0
-#endif
+// faces away. Every VPL gather (ir_*, val_clustered, visibility_gates) sums this term. d2 is the
+// near field of a VPL standing for the area A_k = position.w (near_field.glsl).
 vec3 vpl_transfer(Vpl v, vec3 x, vec3 nx, float eps) {
     vec3 d = v.position.xyz - x;  // x -> y
     float dist = length(d);
@@ -44,13 +40,7 @@ vec3 vpl_transfer(Vpl v, vec3 x, vec3 nx, float eps) {
     float cos_x = dot(nx, w);
     float cos_y = -dot(v.normal.xyz, w);
     if (cos_x <= 0.0 || cos_y <= 0.0) return vec3(0.0);
-#if VPL_NEAR_DISC
-    float d2 = max(eps * eps, dist * dist + v.position.w * INV_PI);
-#else
-    float dc = max(eps, dist);
-    float d2 = dc * dc;
-#endif
-    return v.flux.rgb * (cos_x * cos_y / d2);
+    return v.flux.rgb * (cos_x * cos_y / near_field_d2(dist, v.position.w, eps));
 }
 
 // Rec. 709 luminance: positive weights, so it is > 0 whenever any channel of the flux is.

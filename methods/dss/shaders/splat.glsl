@@ -4,11 +4,13 @@
 // receiver takes the surfel at exactly one level (shell_level), and only within the cut
 // radius r where the surfel's contribution per unit area falls under the threshold. The
 // fragment adds the unshadowed surfel -> receiver irradiance
-//     E = B/pi <n_x, w>+ |<n_y, w>| A / max(eps, d)^2      (Lambertian emission, as manylights)
+//     E = B/pi <n_x, w>+ |<n_y, w>| A / d2      (Lambertian emission, as manylights)
 // with B the radiosity of the side of the surfel's shading normal the receiver is on and n_y
 // its geometric normal (Mitsuba's twosided diffuse with shading normals, as manylights).
-// (the receiver's rho/pi is applied after upsampling, at full resolution).
+// (the receiver's rho/pi is applied after upsampling, at full resolution). d2 is the near field
+// of a surfel of area A at distance d (near_field.glsl: max(eps, d)^2, d^2 + A/pi, ...).
 #include "common.glsl"
+#include "near_field.glsl"
 #include "dss_common.glsl"
 uniform uint u_capacity;
 uniform mat4 u_view;
@@ -139,8 +141,8 @@ void main() {
     if (all(equal(radiosity, vec3(0.0)))) discard;
     float cos_x = dot(texelFetch(u_receiver_normal, a, 0).xyz, w);
     if (cos_x <= 0.0) discard;
-    float dc = max(u_eps, dist);
+    float d2 = near_field_d2(dist, g_position_area.w, u_eps);
     float weight = float(INTERLEAVE * INTERLEAVE);
-    out_irradiance = vec4(radiosity * (INV_PI * cos_x * abs(cos_y) * g_position_area.w / (dc * dc) * weight), 0.0);
+    out_irradiance = vec4(radiosity * (INV_PI * cos_x * abs(cos_y) * g_position_area.w / d2 * weight), 0.0);
 }
 #endif
