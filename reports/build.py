@@ -7,7 +7,8 @@ Layout of the output folder (default `<run>/report/`):
                         once), loaded by <script src>
                         (browsers block fetch() of local files)
   data/*.csv            the between-method and paper-reproduction tables
-  plots/*.svg           matplotlib figures
+  plots/*.svg           matplotlib figures (per view: time vs error, its single-frame and accumulated
+                        curves; the bias/variance split; per-stage times)
   report.json           when the report was built, from which run, in how many seconds (the
                         report's own time lives here: the run folder it reads is never written)
 
@@ -44,10 +45,12 @@ from .viewdata import view_data, write_view_script
 __all__ = ["build_report"]
 
 # the sweep table's columns besides time and error that the page shows
-KEEP_COLUMNS = ("image_dir", "skipped_stages", "samples.stage_ms", "width", "height", "stage_ms.", "reference_")
-TOC = (("overview", "Time and error"), ("scenes", "Scenes"), ("timing", "Stages"), ("speedup", "Speed-up"),
-       ("scaling", "Scaling"), ("between", "Between methods"), ("papers", "Papers"), ("scene-facts", "Scene facts"),
-       ("references", "References"), ("metrics", "Metrics"), ("run", "Run"))
+KEEP_COLUMNS = ("image_dir", "skipped_stages", "samples.stage_ms", "width", "height", "stage_ms.", "reference_",
+                "extra.error_frames")
+TOC = (("overview", "Time and error"), ("decomposition", "Bias and variance"), ("scenes", "Scenes"),
+       ("timing", "Stages"), ("speedup", "Speed-up"), ("scaling", "Scaling"), ("between", "Between methods"),
+       ("papers", "Papers"), ("scene-facts", "Scene facts"), ("references", "References"), ("metrics", "Metrics"),
+       ("run", "Run"))
 
 
 def _copy_assets(out_dir: Path) -> None:
@@ -73,11 +76,15 @@ def _views(run_dir: Path, out_dir: Path, table: pd.DataFrame, views: list, curve
         stages = tables.stage_order(rows)
         plot = plots.time_error_plot(table, curves, scene, view, out_dir / "plots" / f"time_error_{i}.svg")
         stage_plot = plots.stage_plot(rows, stages, out_dir / "plots" / f"stages_{i}.svg", f"{key}: per-stage GPU time")
+        split = tables.bias_variance(rows)
+        split_plot = plots.bias_variance_plot(split, out_dir / "plots" / f"bias_variance_{i}.svg",
+                                              f"{key}: bias and variance (default rungs)")
         front = fronts[(fronts["scene"] == scene) & (fronts["view"] == view)] if len(fronts) else fronts
         scene_views.append({"index": i, "scene": scene, "view": view, "key": key,
                             "purpose": manifest.get("scene_purposes", {}).get(scene),
                             "time_error_plot": plot.name if plot is not None else None,
                             "stage_plot": stage_plot.name if stage_plot is not None else None,
+                            "bias_variance": split, "bias_variance_plot": split_plot.name if split_plot else None,
                             "pareto": tables.pareto_rows(front)})
         timing.append({"scene": scene, "view": view, "stages": stages, "rows": tables.stage_rows(rows, stages)})
         speed = tables.speedup(rows)
@@ -123,6 +130,7 @@ def build_report(run_dir, out_dir=None) -> Path:
     scene_views, timing, speedups = _views(run_dir, out_dir, table, views, curves, manifest)
     scaling = _scaling(table, manifest, out_dir)
     metric_docs = tables.metric_docs(overview["metrics"])
+    decomposition = any(v["bias_variance"] for v in scene_views) or overview["flicker"] is not None
     machine = manifest.get("machine", {})
     context = {
         "title": f"gibench report: {run_dir.resolve().name}",
@@ -130,8 +138,9 @@ def build_report(run_dir, out_dir=None) -> Path:
                      "renderer": machine.get("gl_renderer", "?"), "cpu": machine.get("cpu", "?"),
                      "commit": str(manifest.get("git_commit") or "?")[:12],
                      "incomplete": progress.describe()},
-        "toc": [(a, t) for a, t in TOC if (metric_docs or a != "metrics") and (scaling or a != "scaling")],
-        "overview": overview, "not_rendered": tables.not_rendered(df),
+        "toc": [(a, t) for a, t in TOC if (metric_docs or a != "metrics") and (scaling or a != "scaling")
+                and (decomposition or a != "decomposition")],
+        "overview": overview, "not_rendered": tables.not_rendered(df), "decomposition": decomposition,
         "scene_views": scene_views, "timing": timing, "speedup": speedups, "scaling": scaling,
         "between": comparisons.between_methods(table, out_dir),
         "papers": comparisons.reproduction(table, manifest, out_dir),

@@ -9,7 +9,7 @@ from pathlib import Path
 import pandas as pd
 
 from bench.protocol import results as store
-from bench.analysis.compare import comparison_table
+from bench.analysis.compare import ERROR_COLUMNS, comparison_table
 from bench.analysis.reproduction import reproduction_table
 
 MATRIX_ERROR = "mse.combined"
@@ -32,15 +32,18 @@ def _ratio(kind_rows: pd.DataFrame, a: str, b: str) -> dict:
     return {"kind": "ratio", "ratio": rec["ratio"], "lo": rec["lo"], "hi": rec["hi"], "capped": bool(rec["capped"])}
 
 
-def between_methods(table: pd.DataFrame, report_dir: Path) -> dict | None:
-    """Per view, both matrices of ratios between the methods' curves; None when no view has two methods
-    with error figures. Writes `data/comparisons.csv` (all pairs, both error columns)."""
-    comp = comparison_table(table)
+def between_methods(table: pd.DataFrame, report_dir: Path, errors: tuple = ERROR_COLUMNS,
+                    matrix_error: str = MATRIX_ERROR) -> dict | None:
+    """Per view, both matrices of ratios between the methods' curves on `matrix_error`; None when no
+    view has two methods with error figures. Writes `data/comparisons.csv` (all pairs, every column
+    of `errors`: any error column, e.g. "rel_bias2.indirect" or "variance.indirect" of the error over frames)."""
+    errors = tuple(dict.fromkeys(tuple(errors) + (matrix_error,)))
+    comp = comparison_table(table, errors=errors)
     if comp.empty:
         return None
     store.atomic_write_text(report_dir / "data" / "comparisons.csv", comp.to_csv(index=False))
     views = []
-    for (scene, view), g in comp[comp["error"] == MATRIX_ERROR].groupby(["scene", "view"], sort=True):
+    for (scene, view), g in comp[comp["error"] == matrix_error].groupby(["scene", "view"], sort=True):
         methods = list(dict.fromkeys(list(g["method_b"]) + list(g["method_a"])))
         kinds = []
         for kind, title, doc in KINDS:
@@ -48,7 +51,7 @@ def between_methods(table: pd.DataFrame, report_dir: Path) -> dict | None:
             kinds.append({"title": title, "doc": doc,
                           "rows": [{"method": a, "cells": [_ratio(k, a, b) for b in methods]} for a in methods]})
         views.append({"scene": scene, "view": view, "methods": methods, "kinds": kinds})
-    return {"error": MATRIX_ERROR, "views": views}
+    return {"error": matrix_error, "views": views}
 
 
 def reproduction(table: pd.DataFrame, manifest: dict, report_dir: Path) -> list[dict]:

@@ -1,7 +1,8 @@
 """The data of the report's tables, as plain lists and dicts for the section templates
-(templates/sections/): the time-and-error overview, the rows not rendered, per-stage timing,
-equal-error speed-ups, Pareto fronts, cost vs triangles, scene facts, reference noise floors,
-the metric docs and the run's record."""
+(templates/sections/): the time-and-error overview (with the flicker column), the rows not
+rendered, the bias/variance split of each view, per-stage timing, equal-error speed-ups, Pareto
+fronts, cost vs triangles, scene facts, reference noise floors, the metric docs and the run's
+record. A row without the error over frames (an old run, --error-frames 1) adds nothing to them."""
 from __future__ import annotations
 
 import json
@@ -10,17 +11,40 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from bench.analysis.compare import default_row
 from bench.analysis.curves import SPEEDUP_COMPONENTS
-from bench.analysis.metrics import METRICS
-from bench.protocol.vocabulary import BIAS_METRICS, ERROR_COMPONENTS, METRIC_NAMES, REFERENCE_COMPONENTS, SHARED_STAGES, Status
+from bench.analysis.metrics import EPS_RELMSE, METRICS
+from bench.protocol.vocabulary import (BIAS_METRICS, DECOMPOSITION_METRICS, ERROR_COMPONENTS, METRIC_NAMES,
+                                       REFERENCE_COMPONENTS, SHARED_STAGES, Status, interval_column)
 
 from .render import fmt
 
 # the tables list the direct component last: for most methods it is the same shared direct pass
 TABLE_COMPONENTS = tuple(c for c in ERROR_COMPONENTS if c != "direct") + ("direct",)
+_RELATIVE = f"per pixel over r^2 + {EPS_RELMSE} * mean(r^2), as relmse"
+DECOMPOSITION_DOCS = {
+    "bias2": "squared error of the mean of the K error frames, less that mean's own variance (variance / K) and the "
+             "reference's noise: what accumulating frames cannot remove",
+    "variance": "per-pixel variance over the K error frames (K - 1 denominator), averaged: the noise a temporal "
+                "filter or a denoiser removes; 0 for a deterministic method",
+    "flicker": "mean squared difference between consecutive error frames / 2: what a viewer sees change from frame "
+               "to frame (the variance for independent frames, less for a method that reuses earlier frames)",
+    "mse_accumulated": "MSE of the mean of the K error frames, less the reference's noise: what a temporal "
+                       "accumulation of K frames reaches",
+}
+DECOMPOSITION_DOCS.update({f"rel_{m}": f"{m}, {_RELATIVE} (rel_bias2 + rel_variance estimates the expected "
+                                       f"single-frame relmse)" for m in list(DECOMPOSITION_DOCS)})
 METRIC_DOCS = dict(METRICS, mean_ratio="image mean / reference mean on covered pixels: 1 is unbiased in the mean "
-                                       "(best: closest to 1)")
+                                       "(best: closest to 1)", **DECOMPOSITION_DOCS)
 DEFAULT_METRICS = ("relmse.indirect", "mse.indirect", "mse.combined")
+# the overview's flicker column and the component of each view's bias/variance split
+FLICKER_COLUMN = "rel_flicker.indirect"
+SPLIT_COMPONENT = "indirect"
+SPLIT_METRICS = ("rel_bias2", "rel_variance", "rel_flicker", "rel_mse_accumulated")
+# the error over frames in the overview's select: the relative forms (a table spans scenes of any
+# brightness; the absolute ones are in sweep.csv and the gate): 40 views x 30 rows give 2.6 MB of overview
+# tables (1.2 MB without the error over frames, 3.3 MB with every form)
+OVERVIEW_DECOMPOSITION = tuple(m for m in DECOMPOSITION_METRICS if m.startswith("rel_"))
 
 
 def _finite_min(values) -> float:
@@ -30,10 +54,11 @@ def _finite_min(values) -> float:
 
 
 def metric_columns(table: pd.DataFrame) -> list[str]:
-    """The error columns of `table` that hold a number, by component then metric."""
+    """The error columns of `table` that hold a number, by component then metric (the relative error
+    over frames after the single-frame metrics)."""
     cols = []
     for comp in TABLE_COMPONENTS:
-        for metric in METRIC_NAMES:
+        for metric in METRIC_NAMES + OVERVIEW_DECOMPOSITION:
             col = f"{metric}.{comp}"
             if col in table.columns and pd.to_numeric(table[col], errors="coerce").notna().any():
                 cols.append(col)
@@ -47,10 +72,16 @@ def _badness(metric: str | None):
     return lambda v: v
 
 
+def _has_numbers(table: pd.DataFrame, column: str) -> bool:
+    return column in table.columns and bool(np.isfinite(pd.to_numeric(table[column], errors="coerce")).any())
+
+
 def overview(table: pd.DataFrame, views: list[tuple[str, str]], facts: dict | None) -> dict:
     """Method x view tables of time and error, one per error column (the page shows one, chosen by a
-    select), views headed with their triangle count like the FLC paper's Table 2."""
+    select), views headed with their triangle count like the FLC paper's Table 2; with a flicker
+    column (FLICKER_COLUMN) beside each view's error when any row has it."""
     metric_cols = metric_columns(table) if views else []
+    flicker = bool(views) and _has_numbers(table, FLICKER_COLUMN)
     labels = list(dict.fromkeys(table["label"])) if views else []
     lookup = {(r["label"], r["scene"], r["view"]): r for r in table.to_dict("records")}
     multi_view = len({s for s, _ in views}) < len(views)
@@ -65,6 +96,8 @@ def overview(table: pd.DataFrame, views: list[tuple[str, str]], facts: dict | No
         badness = _badness(metric)
         best_e = {sv: _finite_min(badness(lookup.get((l, *sv), {}).get(metric)) for l in labels) for sv in views} \
             if metric else {}
+        best_f = {sv: _finite_min(lookup.get((l, *sv), {}).get(FLICKER_COLUMN) for l in labels) for sv in views} \
+            if flicker else {}
         rows = []
         for label in labels:
             cells = []
@@ -72,14 +105,48 @@ def overview(table: pd.DataFrame, views: list[tuple[str, str]], facts: dict | No
                 rec = lookup.get((label, *sv), {})
                 t = rec.get("frame_ms")
                 e = rec.get(metric) if metric else None
+                f = rec.get(FLICKER_COLUMN) if flicker else None
                 cells.append({"time": t, "time_best": t is not None and t == best_t[sv], "error": e,
-                              "error_best": bool(metric) and e is not None and badness(e) == best_e[sv]})
+                              "error_best": bool(metric) and e is not None and badness(e) == best_e[sv],
+                              "flicker": f, "flicker_best": flicker and f is not None and f == best_f[sv]})
             rows.append({"label": label, "cells": cells})
         return {"metric": metric, "rows": rows}
 
     tables = ([one(m) for m in metric_cols] or [one(None)]) if views else []
     default = next((m for m in DEFAULT_METRICS if m in metric_cols), metric_cols[0] if metric_cols else None)
-    return {"heads": heads, "metrics": metric_cols, "default_metric": default, "tables": tables}
+    return {"heads": heads, "metrics": metric_cols, "default_metric": default, "tables": tables,
+            "flicker": FLICKER_COLUMN if flicker else None}
+
+
+def _number(rec: dict, column: str) -> float | None:
+    try:
+        v = float(rec.get(column))
+    except (TypeError, ValueError):
+        return None
+    return v if np.isfinite(v) else None
+
+
+def bias_variance(rows: pd.DataFrame, component: str = SPLIT_COMPONENT) -> list[dict]:
+    """One view's bias/variance split: per method, its default rung's rel_bias2, rel_variance,
+    rel_flicker and rel_mse_accumulated of `component` with their intervals, its single-frame
+    relmse and its error-frame count K; [] when no row has the split (old runs, --error-frames 1)."""
+    bias, variance = f"rel_bias2.{component}", f"rel_variance.{component}"
+    if rows.empty or not (_has_numbers(rows, bias) and _has_numbers(rows, variance)):
+        return []
+    out = []
+    for method, group in rows.groupby("method", sort=False):
+        rec = group.loc[default_row(group)].to_dict()
+        b, v = _number(rec, bias), _number(rec, variance)
+        if b is None or v is None:
+            continue
+        entry = {"label": rec["label"], "method": str(method), "error_frames": _number(rec, "extra.error_frames"),
+                 "relmse": _number(rec, f"relmse.{component}"),
+                 "bias_share": max(b, 0.0) / (max(b, 0.0) + v) if max(b, 0.0) + v > 0 else None}
+        for metric in SPLIT_METRICS:
+            entry[metric] = _number(rec, f"{metric}.{component}")
+            entry[f"{metric}_ci"] = _number(rec, interval_column(metric, component))
+        out.append(entry)
+    return out
 
 
 def not_rendered(df: pd.DataFrame) -> list[dict]:
@@ -167,7 +234,9 @@ def noise_floors(table: pd.DataFrame) -> dict | None:
 
 def metric_docs(metric_cols: list[str]) -> list[tuple[str, str]]:
     used = {c.split(".", 1)[0] for c in metric_cols}
-    return [(m, METRIC_DOCS.get(m, "description unavailable")) for m in METRIC_NAMES if m in METRICS or m in used]
+    used |= {m[len("rel_"):] for m in used if m.startswith("rel_")}   # the absolute forms of the shown ones
+    return [(m, METRIC_DOCS.get(m, "description unavailable")) for m in METRIC_NAMES + DECOMPOSITION_METRICS
+            if m in METRICS or m in used]
 
 
 def run_info(manifest: dict, run_dir: Path) -> dict:

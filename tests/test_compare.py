@@ -121,3 +121,44 @@ def test_gates_claim_is_not_applicable_without_indirect_occlusion():
     table.loc[table["method"] == "ir_shadowed", "mse.combined"] = 0.5   # shadows matter: the claim is testable
     status = {r["claim"]: r["status"] for r in reproduction.gates_table2(table)}
     assert status["gates MSE / unshadowed VPLs MSE < 1"] == "not reproduced"
+
+
+# ---------------------------------------------------------------------------- the error over frames (issue 24)
+def test_error_over_frames_compares_with_its_interval_over_pixels():
+    # variance.indirect: A's rungs e = 4 / t, B one point; B's value carries an interval of +-0.5
+    def var_row(method, t, e, ci, **kw):
+        return row(method, t, 1.0, **{"variance.indirect": e, "variance_ci.indirect": ci}, **kw)
+    table = pd.DataFrame([var_row("A", 1, 4, 0.0), var_row("A", 2, 2, 0.0, default=True), var_row("A", 4, 1, 0.0),
+                          var_row("B", 2, 1, 0.5, default=True),
+                          var_row("C", 2, 0.0, 0.0, default=True)])   # deterministic: variance 0, off the log axes
+    out = compare.comparison_table(table, errors=("variance.indirect",))
+    assert set(out["error"]) == {"variance.indirect"} and set(out["method_b"]) == {"A", "B"}
+    r = out.set_index(["method_a", "method_b", "kind"]).loc[("A", "B", "error_at_equal_time")]
+    assert r["ratio"] == pytest.approx(2.0)
+    # B's true variance in [0.5, 1.5]: A's 2 at B's time is 4/3 .. 4 times B's (no noise floor subtracted)
+    assert r["lo"] == pytest.approx(2 / 1.5) and r["hi"] == pytest.approx(4.0)
+    # the same numbers as an MSE column would get no interval without a noise floor
+    table["mse.indirect"] = table["variance.indirect"]
+    plain = compare.compare_view(table, "mse.indirect").set_index(["method_a", "method_b", "kind"])
+    assert plain.loc[("A", "B", "error_at_equal_time"), "hi"] == pytest.approx(2.0)
+
+
+def test_flc_bias_against_mitsuba_is_its_targets():
+    def frames(method, bias2, ci, **kw):
+        return row(method, 5, 1.0, **{"rel_bias2.indirect": bias2, "rel_bias2_ci.indirect": ci}, **kw)
+    target = dict(default=False, params={"emission": "flc", "jitter_frames": 64})
+    table = pd.DataFrame([frames("flc", 0.051, 0.002, default=True), frames("manylights", 0.30, 0.01, default=True),
+                          frames("manylights", 0.049, 0.002, **target),
+                          frames("manylights", 0.2, 0.002, default=False, params={"emission": "flc", "jitter_frames": 1})])
+    [r] = reproduction.flc_unbiased(table)
+    assert r["status"] == "reproduced" and r["run_value"] == pytest.approx(0.051 / 0.049)
+    assert "jitter_frames=64" in r["note"]
+    table.loc[table["method"] == "flc", "rel_bias2.indirect"] = 0.08   # FLC biased beyond its lobe
+    assert reproduction.flc_unbiased(table)[0]["status"] == "not reproduced"
+    in_table = reproduction.reproduction_table(table)
+    assert (in_table["paper"] == "FLC eq. 8-9").sum() == 1
+    # no target row: not measured; no error over frames (an old run): no row at all
+    only_flc = table[table["method"] == "flc"]
+    assert reproduction.flc_unbiased(only_flc)[0]["status"] == "not measured"
+    assert reproduction.flc_unbiased(only_flc.drop(columns=["rel_bias2.indirect"])) == []
+    assert reproduction.flc_unbiased(only_flc.assign(**{"rel_bias2.indirect": np.nan})) == []

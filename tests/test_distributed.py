@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 
 from bench.model.imageio import read_exr
+from bench.protocol.vocabulary import FRAME_STAT_IMAGES
 from bench.run.serial import RunConfig, run
 from tests.conftest import make_open_box
 
@@ -42,7 +43,7 @@ def test_two_workers_give_the_serial_rows_and_images(tmp_path):
     assert sorted(set(dist.columns) - {"worker"}) == sorted(serial.columns)
     assert dist["extra.shared_passes_reused"].astype(bool).tolist() == serial["extra.shared_passes_reused"].astype(bool).tolist()
     for a, b in zip(serial.to_dict("records"), dist.to_dict("records")):
-        for comp in ("direct", "indirect", "combined"):
+        for comp in ("direct", "indirect", "combined") + FRAME_STAT_IMAGES:   # the error frames' statistics too
             assert np.array_equal(read_exr(rs.run_dir / a["image_dir"] / f"{comp}.exr"),
                                   read_exr(rd.run_dir / b["image_dir"] / f"{comp}.exr")), (a["method"], comp)
     files = lambda d: sorted(p.relative_to(d).as_posix() for p in d.rglob("*") if p.is_file())

@@ -465,3 +465,88 @@ def test_hand_edited_tables(tmp_path, capsys):
     assert main(["gate", str(a), str(bad)]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "column frame_ms holds 'fast' in row 3" in err
+
+
+# ---------------------------------------------------------------------------- the error over frames (issue 24)
+REFS = {"reference_key.indirect_unshadowed": "k" * 32, "reference_spp.indirect_unshadowed": 256,
+        "reference_noise_floor.indirect_unshadowed": 1e-6}
+
+
+def frames_row(bias2=0.004, variance=0.01, k=8, **kw):
+    """A row with the error over frames of `indirect` (and its intervals over pixels), as the runner writes them."""
+    cols = {"mse.indirect": 0.02, "relmse.indirect": 0.3, "bias2.indirect": bias2, "bias2_ci.indirect": 1e-4,
+            "variance.indirect": variance, "variance_ci.indirect": 1e-4, "flicker.indirect": variance,
+            "flicker_ci.indirect": 1e-4, "mse_accumulated.indirect": bias2 + variance / k,
+            "mse_accumulated_ci.indirect": 1e-4, "rel_variance.indirect": 0.2, "rel_variance_ci.indirect": 1e-3}
+    return make_row(errors=cols, **kw) | REFS | {"extra.error_frames": k}
+
+
+def test_error_over_frames_is_gated_like_the_other_errors(tmp_path):
+    a = write_run(tmp_path / "a", [frames_row()])
+    noisier = write_run(tmp_path / "b", [frames_row(variance=0.02) | {"mse.indirect": 0.03}])
+    res = compare_runs(a, noisier)
+    assert res.exit_code == 1
+    assert {f.check for f in res.regressions} == {"variance.indirect", "flicker.indirect", "mse.indirect",
+                                                  "mse_accumulated.indirect"}
+    # --metric: that column only (timing is gated as before)
+    res = compare_runs(a, noisier, metrics=["variance.indirect"])
+    assert [f.check for f in res.regressions] == ["variance.indirect"] and res.metrics == ("variance.indirect",)
+    assert "`variance.indirect` only" in res.markdown()
+    res = compare_runs(a, noisier, metrics="relmse.indirect")
+    assert res.exit_code == 0 and not res.regressions
+    # less bias: an improvement of bias2 and of the accumulated error
+    res = compare_runs(a, write_run(tmp_path / "c", [frames_row(bias2=0.001)]), metrics=["bias2.indirect"])
+    assert res.exit_code == 0 and [f.check for f in res.improvements] == ["bias2.indirect"]
+
+
+def test_bias2_within_its_interval_is_no_change(tmp_path):
+    # an unbiased method: its bias2 estimate scatters about 0 within its interval over pixels
+    base = frames_row(bias2=-2e-5) | {"bias2_ci.indirect": 3e-5}
+    same = frames_row(bias2=3e-5) | {"bias2_ci.indirect": 3e-5}
+    a = write_run(tmp_path / "a", [base])
+    assert compare_runs(a, write_run(tmp_path / "b", [same]), metrics=["bias2.indirect"]).exit_code == 0
+    res = compare_runs(a, write_run(tmp_path / "c", [frames_row(bias2=2e-3)]), metrics=["bias2.indirect"])
+    [f] = res.regressions
+    assert f.baseline == 0.0 and f.candidate == 2e-3 and "95% interval" in f.note   # clamped at 0
+    assert error_check("bias2", 0.0, 4e-5, 0.05, spread=5e-5) is None
+    assert error_check("bias2", 0.0, 4e-5, 0.05) == "regression"
+
+
+def test_error_over_frames_needs_the_same_frame_count_not_the_same_reference_spp(tmp_path):
+    a = write_run(tmp_path / "a", [frames_row()])
+    res = compare_runs(a, write_run(tmp_path / "b", [frames_row(variance=0.05, k=4)]))
+    assert res.exit_code == 0 and not res.regressions
+    assert ("box/main/manylights", "errors over frames not comparable (error frames 8 -> 4)") in res.not_comparable
+    # a better-converged candidate reference: variance and flicker (the method's own spread) are still judged
+    refined = frames_row(variance=0.05) | {"reference_spp.indirect_unshadowed": 1024}
+    res = compare_runs(a, write_run(tmp_path / "c", [refined]))
+    assert {f.check for f in res.regressions} == {"variance.indirect", "flicker.indirect"}
+    assert any("not comparable" in why for _, why in res.not_comparable)
+
+
+def test_metric_option(tmp_path, capsys):
+    from bench.cli import main
+    a = write_run(tmp_path / "a", [frames_row()])
+    b = write_run(tmp_path / "b", [frames_row(variance=0.02)])
+    assert main(["gate", str(a), str(b), "--metric", "variance.indirect"]) == 1
+    assert "| variance.indirect |" in capsys.readouterr().out
+    assert main(["gate", str(a), str(b), "--metric", "mse.indirect,relmse.indirect"]) == 0
+    capsys.readouterr()
+    for bad in ("variance.foo", "noise.indirect", "variance.direct", "bias2_ci.indirect", ""):
+        with pytest.raises(SystemExit) as exc:
+            main(["gate", str(a), str(b), "--metric", bad])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err.strip()
+        assert "--metric" in err and "\n" not in err
+    with pytest.raises(ValueError, match="unknown error column 'noise.indirect'"):
+        compare_runs(a, b, metrics=["noise.indirect"])
+    # a column a side lacks (an old run, or --error-frames 1): exit 2, saying so
+    old = write_run(tmp_path / "old", [make_row() | REFS])
+    assert main(["gate", str(old), str(b), "--metric", "variance.indirect"]) == 2
+    assert "has no column variance.indirect" in capsys.readouterr().out
+    # the column exists but no row has it on both sides: nothing judged, exit 2
+    empty = write_run(tmp_path / "e", [frames_row() | {"variance.indirect": float("nan")}])
+    res = compare_runs(empty, b, metrics=["variance.indirect"])
+    assert res.exit_code == 2 and "nothing was judged" in res.error
+    # without --metric an old baseline still gates its own columns
+    assert compare_runs(old, b).exit_code == 0

@@ -282,3 +282,151 @@ def test_hand_edited_table_is_one_line_or_a_report(tiny_run, tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         if code:
             assert "\n" not in err and "Traceback" not in err and "results.csv: column" in err, err
+
+
+# ---------------------------------------------------------------------------- the error over frames (issue 24)
+SPLIT_COMPONENTS = ("indirect", "indirect_visible", "combined")
+
+
+@pytest.fixture(scope="module")
+def run_with_frames(run_with_refs, tmp_path_factory):
+    """The run with references, plus the error over frames of K = 8 frames as the runner writes it:
+    `direct` deterministic (variance and flicker 0, all its error bias), `manylights` a noisy method
+    (a third of its error variance, flicker below it, as a method reusing earlier frames)."""
+    out = tmp_path_factory.mktemp("run_frames")
+    shutil.copytree(run_with_refs, out, dirs_exist_ok=True)
+    shutil.rmtree(out / "report", ignore_errors=True)
+    rows = store.load_results(out).to_dict("records")
+    for rec in rows:
+        if rec["method"] not in ("direct", "manylights"):
+            continue   # the failed row has none
+        rec["extra.error_frames"] = 8
+        share = 0.0 if rec["method"] == "direct" else 1 / 3
+        for comp in SPLIT_COMPONENTS:
+            rel = comp == "indirect" and rec.get("relmse.indirect") or 0.4
+            for prefix, total in (("", rec[f"mse.{comp}"]), ("rel_", rel)):
+                values = {"variance": share * total, "bias2": (1 - share) * total, "flicker": 0.5 * share * total,
+                          "mse_accumulated": (1 - share) * total + share * total / 8}
+                for metric, value in values.items():
+                    rec[f"{prefix}{metric}.{comp}"] = value
+                    rec[f"{prefix}{metric}_ci.{comp}"] = 0.05 * value
+    store.save_results(out, rows)
+    return out
+
+
+def _svg_ids(path: Path) -> set:
+    return set(re.findall(r'id="([^"]+)"', path.read_text()))
+
+
+def test_report_shows_the_error_over_frames(run_with_frames, run_with_refs):
+    index = build_report(run_with_frames)
+    page = index.read_text()
+    assert "<h2 id='decomposition'>Bias, variance and flicker</h2>" in page and "href='#decomposition'" in page
+    assert "accumulation cannot remove" in page and "emission=flc" in page   # the note, and FLC's
+    # per view: the bias/variance bars and their numbers, the default rung of each method
+    ids = _svg_ids(run_with_frames / "report" / "plots" / "bias_variance_0.svg")
+    assert {"bias2-direct", "bias2-manylights", "variance-direct", "variance-manylights"} <= ids
+    table = page.split("class='data decomposition'", 1)[1].split("</table>", 1)[0]
+    assert table.count("<tr data-method=") == 2 and ">100%<" in table and ">67%<" in table   # direct: all bias
+    assert "&plusmn;" in table
+    # both curves of every method on the time-vs-error plot
+    ids = _svg_ids(run_with_frames / "report" / "plots" / "time_error_0.svg")
+    for comp in ("indirect", "combined"):
+        assert {f"single-{comp}-manylights", f"accumulated-{comp}-manylights", f"accumulated-{comp}-direct"} <= ids
+    # the flicker column of the overview tables, and the new metrics in its select
+    assert page.count("<th class='flicker'") >= len(re.findall(r"<div data-metric=", page))
+    assert "<option value='rel_bias2.indirect'>" in page and "<option value='rel_variance.combined'>" in page
+    assert "<option value='variance.combined'>" not in page and "<dt>variance</dt>" in page
+    # a run without the columns (an old run): nothing new, no error
+    old = build_report(run_with_refs, run_with_refs / "old_report").read_text()
+    assert "id='decomposition'" not in old and "class='flicker'" not in old and "decomposition" not in old
+    assert not list((run_with_refs / "old_report" / "plots").glob("bias_variance_*"))
+    assert not {i for i in _svg_ids(run_with_refs / "old_report" / "plots" / "time_error_0.svg")
+                if i.startswith("accumulated-")}
+
+
+def test_bias_variance_split_without_some_columns():
+    from reports import tables
+    rows = pd.DataFrame([{"scene": "s", "view": "v", "method": "a", "label": "a", "image_dir": "images/s/v/a",
+                          "frame_ms": 1.0, "rel_bias2.indirect": -1e-4, "rel_variance.indirect": 0.2},
+                         {"scene": "s", "view": "v", "method": "b", "label": "b", "image_dir": "images/s/v/b",
+                          "frame_ms": 2.0, "rel_bias2.indirect": np.nan, "rel_variance.indirect": np.nan}])
+    [a] = tables.bias_variance(rows)   # b has no split (an old row beside a new one): left out
+    assert a["bias_share"] == 0.0 and a["rel_bias2_ci"] is None and a["error_frames"] is None
+    assert tables.bias_variance(rows.drop(columns=["rel_variance.indirect"])) == []
+
+
+@pytest.mark.browser
+def test_error_over_frames_in_browser(run_with_frames):
+    """The bias/variance split and both curves of each method, as a browser shows them."""
+    if not CHROMIUM.is_file():
+        pytest.skip("chromium not installed (/usr/bin/chromium)")
+    from playwright.sync_api import sync_playwright
+    index = build_report(run_with_frames)
+    plots_dir = run_with_frames / "report" / "plots"
+    errors = []
+    with sync_playwright() as p:
+        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=[
+            "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
+            "--disable-component-update", "--disable-sync"])
+        try:
+            page = browser.new_page(viewport={"width": 1280, "height": 1500})
+            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
+            page.on("pageerror", lambda e: errors.append(str(e)))
+            page.goto(index.as_uri())
+            page.wait_for_function("window.GIBENCH && window.GIBENCH.ready === true", timeout=20000)
+            # the split: its figure loaded and visible, its table with one row per method
+            bars = page.locator("img.plot.bias-variance")
+            assert bars.count() == 1 and bars.is_visible()
+            assert bars.evaluate("i => i.complete && i.naturalWidth > 0")
+            methods = page.eval_on_selector_all("table.decomposition tr[data-method]", "rs => rs.map(r => r.dataset.method)")
+            assert sorted(methods) == ["direct", "manylights"]
+            assert page.locator("#decomposition").is_visible()
+            # the flicker column of the shown overview table
+            assert page.locator("#overview-tables div:not([hidden]) th.flicker").first.is_visible()
+            # both curves drawn, per method and panel, and the split's bars, in the figures the page shows
+            drawn = "es => es.filter(e => e.getBBox().width > 0).map(e => e.id).sort()"
+            page.goto((plots_dir / "time_error_0.svg").as_uri())
+            for comp in ("indirect", "combined"):
+                for curve in ("single", "accumulated"):
+                    assert page.eval_on_selector_all(f"[id^='{curve}-{comp}-']", drawn) == [
+                        f"{curve}-{comp}-direct", f"{curve}-{comp}-manylights"]
+            page.goto((plots_dir / "bias_variance_0.svg").as_uri())
+            assert page.eval_on_selector_all("[id^='bias2-']", drawn) == ["bias2-direct", "bias2-manylights"]
+            # direct is deterministic: its variance bar is empty
+            assert page.eval_on_selector_all("[id^='variance-']", drawn) == ["variance-manylights"]
+            assert page.eval_on_selector_all("[id^='variance-']", "es => es.length") == 2
+        finally:
+            browser.close()
+    assert not errors, errors
+
+
+def test_run_summary_shows_the_split(tmp_path):
+    from bench.analysis.summary import summary_table, write_summary
+    rows = [{"scene": "s", "view": "v", "method": "flc", "params": "{}", "seed": 0, "status": "ok", "frame_ms": 3.0,
+             "width": 8, "height": 6, "image_dir": "images/s/v/flc", "relmse.indirect": 0.3, "rel_bias2.indirect": 0.2, "rel_variance.indirect": 0.1,
+             "rel_flicker.indirect": 0.1, "rel_bias2_ci.indirect": 0.01}]
+    table = summary_table(pd.DataFrame(rows))
+    assert list(table.columns)[-4:] == ["relmse.indirect", "rel_bias2.indirect", "rel_variance.indirect",
+                                        "rel_flicker.indirect"]
+    store.save_results(tmp_path, rows)
+    md, _ = write_summary(tmp_path)
+    assert "| rel_bias2.indirect |" in md.read_text()
+    assert "rel_bias2" not in summary_table(pd.DataFrame(rows).drop(columns=["rel_bias2.indirect"])).columns
+
+
+def test_between_method_tables_on_an_error_over_frames(run_with_frames, tmp_path):
+    from bench.analysis.curves import declared_defaults, load_curves, sweep_table
+    from bench.protocol.results import load_manifest
+    from reports import comparisons
+    table = sweep_table(store.load_results(run_with_frames), load_curves(run_with_frames),
+                        declared_defaults(load_manifest(run_with_frames)), keep=("image_dir",))
+    (tmp_path / "data").mkdir()
+    out = comparisons.between_methods(table, tmp_path, errors=("rel_bias2.indirect",), matrix_error="bias2.combined")
+    assert out["error"] == "bias2.combined" and [sorted(v["methods"]) for v in out["views"]] == [["direct", "manylights"]]
+    csv = pd.read_csv(tmp_path / "data" / "comparisons.csv")
+    assert set(csv["error"]) == {"rel_bias2.indirect", "bias2.combined"}
+    # variance: direct's is 0, off the log-log curves: no ratio against it, none of it (shown as —)
+    var = pd.read_csv(tmp_path / "data" / "comparisons.csv") if comparisons.between_methods(
+        table, tmp_path, errors=(), matrix_error="variance.indirect") else None
+    assert set(var["method_b"]) == {"manylights"} and var["ratio"].isna().all()

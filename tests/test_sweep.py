@@ -218,3 +218,15 @@ def test_labels_come_from_the_run_manifest_not_todays_code(tmp_path):
     sweep_path, _ = write_sweep(old)
     assert pd.read_csv(sweep_path)["label"].tolist() == [f"ir_unshadowed vpl_count={n}" for n in (16, 64, 256, 1024)]
     assert "<td class='l'>ir_unshadowed</td>" not in build_report(old).read_text()
+
+
+def test_sweep_table_keeps_the_error_over_frames():
+    frames = {"bias2.indirect": 0.01, "bias2_ci.indirect": 1e-3, "rel_variance.combined": 0.2,
+              "rel_variance_ci.combined": 0.01, "mse_accumulated.indirect_visible": 0.03, "extra.error_frames": 8,
+              "mean_ratio.indirect": 0.9}
+    table = sweep_table(_rows().assign(**frames), {}, {}, keep=("extra.error_frames",))
+    for column in frames:
+        if column != "mean_ratio.indirect":
+            assert column in table.columns and table[column].notna().all(), column
+    assert "mean_ratio.indirect" not in table.columns   # a bias figure, not an error column
+    assert "bias2.indirect" not in sweep_table(_rows(), {}, {}).columns   # an old run: nothing new

@@ -18,10 +18,17 @@ The comparison anchors on each method B's *default* rung (t_B, e_B):
     time ratio(A vs B)  = t_A(e_B) / t_B      (< 1: A is faster at B's error)
 
 Uncertainty: every time carries its run's inter-quartile range (frame_ms_iqr) and every
-error the reference's noise floor (the measured MSE is the true MSE plus the floor, so the
-true one lies in [max(e - floor, 0), e]). The interval [lo, hi] of each ratio is the range
-over the corners of those boxes (A's curve shifted by -/+ half its IQRs and by its floor, B's
+error an interval: an MSE the reference's noise floor (the measured MSE is the true MSE plus
+the floor, so the true one lies in [max(e - floor, 0), e]); an error over frames (bias2,
+variance, flicker, mse_accumulated and their relative forms: the reference noise is already
+removed from them) its 95% interval over pixels, [e - ci, e + ci] from its `<metric>_ci` column;
+other metrics none. The interval [lo, hi] of each ratio is the range over the corners of those
+boxes (A's curve shifted by -/+ half its IQRs and to either end of its errors' intervals, B's
 anchor likewise); a ratio whose interval contains 1 does not separate the two methods.
+
+Any error column can be compared (`comparison_table(..., errors=...)`); the curves are drawn in
+log-log, so points whose error is 0 or below (a deterministic method's variance, a bias2
+estimate below 0) are not on them.
 """
 from __future__ import annotations
 
@@ -31,7 +38,7 @@ import math
 import numpy as np
 import pandas as pd
 
-from bench.protocol.vocabulary import REFERENCE_PARTS
+from bench.protocol.vocabulary import DECOMPOSITION_METRICS, REFERENCE_PARTS, interval_column
 
 ERROR_COLUMNS = ("mse.combined", "mse.indirect")
 
@@ -83,21 +90,33 @@ def _floor(rows: pd.DataFrame, error: str) -> np.ndarray:
     return total
 
 
+def _error_bounds(rows: pd.DataFrame, error: str, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(low, high) ends of each row's error: an MSE less its noise floor, an error over frames
+    -/+ its interval over pixels (see the module docstring), the value itself otherwise."""
+    metric, _, component = error.partition(".")
+    if metric in DECOMPOSITION_METRICS:
+        col = interval_column(metric, component)
+        ci = (np.nan_to_num(np.abs(pd.to_numeric(rows[col], errors="coerce").to_numpy(float)), nan=0.0)
+              if col in rows.columns else np.zeros(len(rows)))
+        return np.maximum(e - ci, 1e-30), e + ci
+    return np.maximum(e - _floor(rows, error), 1e-30), e
+
+
 def _points(rows: pd.DataFrame, error: str) -> dict:
     t = pd.to_numeric(rows["frame_ms"], errors="coerce").to_numpy(float)
     iqr = (pd.to_numeric(rows["frame_ms_iqr"], errors="coerce").to_numpy(float) if "frame_ms_iqr" in rows.columns
            else np.zeros(len(rows)))
     iqr = np.nan_to_num(iqr, nan=0.0)
     e = pd.to_numeric(rows[error], errors="coerce").to_numpy(float)
-    return {"t": t, "iqr": iqr, "e": e, "floor": _floor(rows, error)}
+    lo, hi = _error_bounds(rows, error, e)
+    return {"t": t, "iqr": iqr, "e": e, "lo": lo, "hi": hi}
 
 
 def _corners(p: dict):
     """The curve's variants at the corners of its uncertainty box: (times, errors) pairs."""
-    for ts, es in itertools.product((-0.5, 0.0, 0.5), (0.0, 1.0)):
+    for ts, end in itertools.product((-0.5, 0.0, 0.5), ("lo", "hi")):
         t = np.maximum(p["t"] + ts * p["iqr"], 1e-9)
-        e = np.maximum(p["e"] - es * p["floor"], 1e-30)
-        yield t, e
+        yield t, p[end]
 
 
 def default_row(rows: pd.DataFrame) -> int:
@@ -128,7 +147,7 @@ def compare_view(rows: pd.DataFrame, error: str) -> pd.DataFrame:
         if not (tb > 0 and eb > 0):
             continue
         tb_range = (max(tb - 0.5 * anchor["iqr"][0], 1e-9), tb, tb + 0.5 * anchor["iqr"][0])
-        eb_range = (max(eb - anchor["floor"][0], 1e-30), eb)
+        eb_range = (float(anchor["lo"][0]), float(anchor["hi"][0]))
         for a, ga in by_method.items():
             if a == b:
                 continue

@@ -27,10 +27,14 @@ import pandas as pd
 
 from bench.protocol import results as store
 from bench.protocol.results import load_json_object, load_manifest
-from bench.protocol.vocabulary import CURVE_COMPONENTS, ERROR_METRICS, REFERENCE_PARTS, Status
+from bench.protocol.vocabulary import (CURVE_COMPONENTS, DECOMPOSITION_METRICS, INTERVAL_SUFFIX, REFERENCE_PARTS, Status,
+                                       error_metric_names)
 
 SPEEDUP_COMPONENTS = ("indirect", "indirect_visible", "combined")
 PARETO_ERROR = "mse.indirect"
+# the metrics whose columns a sweep table keeps: every error metric, and the 95% intervals over
+# pixels of the error over frames (bias2, variance, flicker, mse_accumulated and their relative forms)
+TABLE_ERROR_METRICS = error_metric_names() + tuple(m + INTERVAL_SUFFIX for m in DECOMPOSITION_METRICS)
 
 
 # ---------------------------------------------------------------------------- Pareto front
@@ -188,11 +192,11 @@ def ok_rows(df: pd.DataFrame) -> pd.DataFrame:
 
 def sweep_table(df: pd.DataFrame, curves: dict, declared: dict[str, dict], keep: tuple = ()) -> pd.DataFrame:
     """Rows that rendered, labelled (see variant_labels: `declared` are the run's declared defaults),
-    with their error columns, Mitsuba's equal-error time and the speed-up (plus the columns whose
-    names start with one of `keep`)."""
+    with their error columns (the error over frames and its intervals too, when the rows have them),
+    Mitsuba's equal-error time and the speed-up (plus the columns whose names start with one of `keep`)."""
     rows = ok_rows(df)
     rows["label"] = variant_labels(rows, declared) if len(rows) else pd.Series(dtype=str)
-    error_cols = sorted(c for c in rows.columns if c.split(".", 1)[0] in ERROR_METRICS)
+    error_cols = sorted(c for c in rows.columns if c.split(".", 1)[0] in TABLE_ERROR_METRICS)
     base = [c for c in ("scene", "view", "method", "label", "params", "frame_ms", "frame_ms_iqr", "gpu_ms")
             if c in rows.columns]
     kept = [c for c in rows.columns if c.startswith(tuple(keep)) and c not in base and c not in error_cols]

@@ -20,6 +20,40 @@ figure the method issues quote ("FLC's indirect over the reference"). It is a bi
 error (0.5 and 2 are equally wrong), so the gate does not gate on it; a black reference gives no
 column.
 
+Error over frames (rows rendered with K = `extra.error_frames` > 1 error frames: frames 0..K-1 of
+a fresh instance of the method, bench.run.harness): for each error component e whose method image
+is indirect or combined (DECOMPOSITION_COMPONENTS: indirect, indirect_visible, combined), from
+the per-pixel mean M, unbiased variance V (K - 1 denominator) and flicker D (mean over
+consecutive pairs of (f_{k+1} - f_k)^2) of the K frames, R the summed reference and S its
+variance image (the variance of the reference's mean, summed over its parts: its own noise), the
+per-pixel quantities, averaged over the covered pixels and RGB:
+  mse_accumulated.e = mean((M - R)^2 - S)          what averaging the K frames reaches
+  variance.e        = mean(V)                       the per-pixel variance of one frame
+  bias2.e           = mean((M - R)^2 - V / K - S)   the squared bias, the variance of the mean removed
+  flicker.e         = mean(D) / 2                   = the variance for independent frames
+and `rel_<metric>.e`: the same per-pixel quantities weighted by 1 / (R^2 + EPS_RELMSE mean(R^2)),
+relmse's normalisation (bench.analysis.metrics), so they do not change with the scene's
+brightness. Each has a 95% interval over pixels, `<metric>_ci.e` = 1.96 sd(per-pixel value) /
+sqrt(pixel count), a pixel's value being its RGB mean.
+
+The identity: for frames f_k of per-pixel mean mu and variance sigma^2, independent of each
+other and of the reference (mean r), E[(f - R)^2] - S = (mu - r)^2 + sigma^2 for one frame, and
+E[(M - R)^2] = (mu - r)^2 + sigma^2 / K + S with E[V] = sigma^2, so bias2 and variance are
+unbiased estimates of (mu - r)^2 and sigma^2 and
+
+    E[single-frame MSE] = bias2 + variance        (rel_bias2 + rel_variance: the expected relmse)
+
+with the single-frame MSE net of the reference's noise (mse.e minus the reference's noise
+floor). Frames that reuse earlier frames (temporal accumulation) are correlated: their flicker is
+below their variance, V underestimates sigma^2 (for correlation rho between neighbours only,
+E[V] = sigma^2 (1 - 2 rho / K)) and V / K the variance of the mean, so bias2 then includes part of
+the noise. A deterministic method (the same image every frame) has variance and flicker exactly
+0, and bias2 = mse_accumulated = its single-frame MSE net of the reference's noise. The relative
+columns weight each pixel by the noisy R, as relmse does, so the reference's noise is in the
+weight as well as in the error: a second-order bias S does not remove, about 4 S / ((mu - r) r)
+of rel_bias2 (5% on a test where the reference's noise sd is a third of the bias and 3% of r);
+the absolute columns have none.
+
 Memo: with `memo_dir`, each comparison's columns are stored under the sha256 of its inputs (the
 method image, the reference, the mask) and of the metric code, and read back instead of being
 recomputed: the shared direct image of a view is judged once for all its methods, and a re-run
@@ -37,7 +71,10 @@ import numpy as np
 
 from bench.analysis import metrics
 from bench.protocol.versioning import hash_files
-from bench.protocol.vocabulary import COMPARISONS, IMAGE_COMPONENTS
+from bench.protocol.vocabulary import (COMPARISONS, DECOMPOSITION_COMPONENTS, DECOMPOSITION_METRICS, IMAGE_COMPONENTS,
+                                       frame_stat_image, interval_column, metric_column)
+
+Z95 = 1.959963984540054   # the two-sided 95% quantile of the normal distribution
 
 
 
@@ -57,10 +94,14 @@ def _code_hash() -> str:
     return _CODE_HASH[0]
 
 
-def _memo_key(column: str, image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> str:
-    h = hashlib.sha256(f"{_code_hash()}|{column}|{image.shape}".encode())
-    for arr in (image, reference, mask):
-        h.update(memoryview(np.ascontiguousarray(arr)).cast("B"))
+def _memo_key(column: str, *arrays: np.ndarray) -> str:
+    """sha256 of the metric code, the column (with any scalar input in it) and every input array
+    (its shape and dtype with its bytes)."""
+    h = hashlib.sha256(f"{_code_hash()}|{column}".encode())
+    for arr in arrays:
+        arr = np.ascontiguousarray(arr)
+        h.update(f"|{arr.shape}|{arr.dtype.str}|".encode())
+        h.update(memoryview(arr).cast("B"))
     return h.hexdigest()[:32]
 
 
@@ -87,7 +128,13 @@ def _memo_write(memo_dir, key: str, values: dict) -> None:
         pass  # a memo that cannot be written is only a lost shortcut
 
 
-def evaluate_row(images: dict, refs: dict, memo_dir=None) -> dict:
+def evaluate_row(images: dict, refs: dict, memo_dir=None, ref_variances: dict | None = None,
+                 frame_stats: dict | None = None, error_frames: int = 1) -> dict:
+    """Error columns of a row's images (`images`: IMAGE_COMPONENTS) against the references
+    (`refs`: REFERENCE_COMPONENTS, None where missing). With `frame_stats` ({frame_stat_image(c, s):
+    HxWx3} of the error frames) and `error_frames` K > 1, the decomposition columns too, the
+    references' noise removed with `ref_variances` (the variance of each reference's mean; a
+    missing one counts as 0)."""
     missing = [name for name in IMAGE_COMPONENTS if images.get(name) is None]
     if missing:
         raise ValueError(f"evaluate_row: method image(s) {', '.join(missing)} missing")
@@ -111,6 +158,57 @@ def evaluate_row(images: dict, refs: dict, memo_dir=None) -> dict:
                 values[f"mean_ratio.{column}"] = ratio
             _memo_write(memo_dir, key, values)
         out.update(values)
+    if frame_stats is not None and int(error_frames) > 1:
+        out.update(_decomposition_columns(frame_stats, refs, ref_variances or {}, mask, int(error_frames), memo_dir))
+    return out
+
+
+def _decomposition_columns(frame_stats: dict, refs: dict, ref_variances: dict, mask: np.ndarray, frames: int,
+                           memo_dir) -> dict:
+    out = {}
+    for column in DECOMPOSITION_COMPONENTS:
+        image_name, ref_parts = COMPARISONS[column]
+        parts = [refs.get(p) for p in ref_parts]
+        if any(p is None for p in parts):
+            continue
+        reference = np.asarray(sum(parts), np.float32)
+        variances = [ref_variances.get(p) for p in ref_parts]
+        ref_variance = np.asarray(sum(v if v is not None else np.zeros_like(reference) for v in variances), np.float32)
+        mean, var, flicker = (np.asarray(frame_stats[frame_stat_image(image_name, s)], np.float32)
+                              for s in ("mean", "var", "flicker"))
+        key = _memo_key(f"decomposition|{column}|K={frames}", mean, var, flicker, reference, ref_variance, mask) \
+            if memo_dir is not None else ""
+        values = _memo_read(memo_dir, key)
+        if values is None:
+            values = {}
+            for metric, (value, ci) in decomposition(mean, var, flicker, reference, ref_variance, mask, frames).items():
+                values[metric_column(metric, column)] = value
+                values[interval_column(metric, column)] = ci
+            _memo_write(memo_dir, key, values)
+        out.update(values)
+    return out
+
+
+def decomposition(mean, var, flicker, reference, ref_variance, mask, frames: int) -> dict:
+    """{metric: (value, 95% interval half-width over pixels)} for DECOMPOSITION_METRICS (the
+    module's docstring): K = `frames` frames' per-pixel mean, variance and flicker against
+    `reference` of variance `ref_variance`, over the covered pixels of `mask`."""
+    if int(frames) < 2:
+        raise ValueError(f"the decomposition needs at least 2 frames, got {frames}")
+    m = np.asarray(mask, bool)
+    M, V, D, R, S = (np.asarray(a, np.float64)[m] for a in (mean, var, flicker, reference, ref_variance))
+    err2 = (M - R) ** 2
+    per_channel = {"mse_accumulated": err2 - S, "variance": V, "bias2": err2 - V / frames - S, "flicker": D / 2}
+    if m.any():
+        weight = 1.0 / (R * R + metrics.relmse_epsilon(np.asarray(reference), m))
+        per_channel.update({f"rel_{name}": q * weight for name, q in list(per_channel.items())})
+    out = {}
+    for metric in DECOMPOSITION_METRICS:
+        per_pixel = per_channel[metric].mean(axis=1) if metric in per_channel else np.empty(0)
+        n = per_pixel.size
+        value = float(per_pixel.mean()) if n else float("nan")
+        ci = float(Z95 * per_pixel.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan")
+        out[metric] = (value, ci)
     return out
 
 

@@ -13,6 +13,13 @@
   reference than VPLs without shadows (both configurations: 33.1 < 69.1, 39.6 < 170.1) and no
   worse than direct light alone (33.1 < 112.0; 39.6 ~ 39.8). The first claim is `not applicable` on
   a view where per-VPL shadows (ir_shadowed) do not beat unshadowed VPLs either (a convex room).
+* FLC paper, eq. 8-9: the stochastic estimator is unbiased against its own target, the eq. 4
+  sum with the FLC emission lobe (`manylights` with emission=flc; with jitter_frames > 1 over
+  jittered VPL positions, the run's row of most jitter frames). Then FLC's expected image is its
+  target's, and their squared biases against Mitsuba (rel_bias2.indirect, the error over frames)
+  are equal: FLC's bias against Mitsuba is its emission lobe's. Reproduced when the two agree
+  within the 95% interval of their difference (their intervals over pixels in quadrature); a
+  run without the error over frames (old runs, --error-frames 1) has no such row.
 
 Each claim is `reproduced`, `not reproduced` (with the figures that contradict it) or
 `not measured` (the run lacks the rows; the row says which are needed). Times are compared as
@@ -27,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from bench.analysis.compare import default_row
+from bench.protocol.vocabulary import interval_column
 
 # Forward Light Cuts (Table 2): scene -> (triangles, direct only, SSDO, DSS, FLC) in ms
 FLC_TABLE2 = {
@@ -180,9 +188,50 @@ def gates_table2(table: pd.DataFrame, error: str = "mse.combined") -> list[dict]
     return out
 
 
+def _value_ci(rec, metric: str, component: str) -> tuple[float, float]:
+    """(value, half-width of its 95% interval; 0 when the row has none) of an error over frames."""
+    def num(col):
+        try:
+            return float(rec.get(col))
+        except (TypeError, ValueError):
+            return float("nan")
+    ci = abs(num(interval_column(metric, component)))
+    return num(f"{metric}.{component}"), ci if math.isfinite(ci) else 0.0
+
+
+def flc_unbiased(table: pd.DataFrame, metric: str = "rel_bias2", component: str = "indirect") -> list[dict]:
+    """FLC eq. 8-9 (see the module docstring): FLC's bias against Mitsuba equals its target's."""
+    out = []
+    column = f"{metric}.{component}"
+    if column not in table.columns:
+        return out
+    for (scene, view), rows in table.groupby(["scene", "view"], sort=True):
+        flc = _default(rows, "flc")
+        if flc is None or not math.isfinite(_value_ci(flc, metric, component)[0]):
+            continue
+        targets = [(int(_params(r).get("jitter_frames", 1)), i) for i, r in rows[rows["method"] == "manylights"].iterrows()
+                   if _params(r).get("emission") == "flc" and math.isfinite(_value_ci(r, metric, component)[0])]
+        base = {"paper": "FLC eq. 8-9", "claim": f"{column}: FLC / its target (manylights emission=flc), unbiased: 1",
+                "scene": scene, "view": view, "paper_value": 1.0}
+        if not targets:
+            out.append(dict(base, run_value=float("nan"), status="not measured",
+                            note="needs a manylights row with emission=flc (e.g. --param manylights.emission=flc "
+                                 "--param manylights.jitter_frames=64) and the error over frames"))
+            continue
+        jitter, index = max(targets)
+        (a, ca), (b, cb) = _value_ci(flc, metric, component), _value_ci(rows.loc[index], metric, component)
+        spread = math.hypot(ca, cb)
+        status = "reproduced" if abs(a - b) <= spread else "not reproduced"
+        out.append(dict(base, run_value=a / b if b > 0 else float("nan"), status=status,
+                        note=f"{metric} against Mitsuba: FLC {a:.3g} +- {ca:.2g}, target {b:.3g} +- {cb:.2g} "
+                             f"(jitter_frames={jitter}); difference {a - b:.2g}, 95% interval +-{spread:.2g}; the "
+                             f"target's bias is the FLC emission lobe's"))
+    return out
+
+
 def reproduction_table(table: pd.DataFrame, triangles: dict | None = None) -> pd.DataFrame:
     """All claims of the three papers against a results (or sweep) table of rendered rows."""
     if table.empty:
         return pd.DataFrame(columns=COLUMNS)
-    rows = flc_table2(table, triangles or {}) + val_fig10(table) + gates_table2(table)
+    rows = flc_table2(table, triangles or {}) + val_fig10(table) + gates_table2(table) + flc_unbiased(table)
     return pd.DataFrame(rows, columns=COLUMNS)

@@ -1,6 +1,7 @@
 """A run's quick summary (Markdown + a plain HTML page), written at the end of every run:
-one table of status, frame time and indirect error per scene and method. The full comparison
-report with images and plots is `gibench report` (reports/)."""
+one table of status, frame time and indirect error per scene and method (with the split of the
+relative error over frames into bias2 and variance, and the flicker, when the rows have them).
+The full comparison report with images and plots is `gibench report` (reports/)."""
 from __future__ import annotations
 
 import html
@@ -21,9 +22,13 @@ def _fmt(v, digits=3) -> str:
     return str(v)
 
 
+SUMMARY_ERRORS = ("mse.indirect", "relmse.indirect", "rel_bias2.indirect", "rel_variance.indirect",
+                  "rel_flicker.indirect", "mse.combined")
+
+
 def summary_table(df: pd.DataFrame) -> pd.DataFrame:
     cols = ["scene", "view", "method", "status", "frame_ms", "gpu_ms"]
-    cols += [c for c in ("mse.indirect", "relmse.indirect", "mse.combined") if c in df.columns]
+    cols += [c for c in SUMMARY_ERRORS if c in df.columns]
     out = df[[c for c in cols if c in df.columns]].copy()
     if "image_dir" in df.columns:  # `<method>` for default parameters, `<method>@<hash>` otherwise
         out["method"] = df["image_dir"].map(lambda p: Path(str(p)).name if isinstance(p, str) else None).fillna(df["method"])

@@ -1,8 +1,11 @@
 """`gibench gate BASELINE CANDIDATE`: exit 1 on a regression of time or error (bench.gate)."""
 from __future__ import annotations
 
+import argparse
+
 from bench.cli import options
 from bench.gate import compare_runs
+from bench.gate.statistics import check_error_column
 
 
 def add_parser(sub) -> None:
@@ -22,7 +25,21 @@ def add_parser(sub) -> None:
     p.add_argument("--allow-incomplete", action="store_true",
                    help="compare a run that did not finish (interrupted or still running) instead of refusing it; "
                         "the verdict says so")
+    p.add_argument("--metric", type=error_columns, default=None, metavar="COLUMN[,COLUMN...]",
+                   help="gate errors on these columns only (any error column: mse.indirect, relmse.combined, "
+                        "bias2.indirect, variance.indirect, ...; default: every error column both sides have)")
     p.set_defaults(func=main)
+
+
+def error_columns(text: str) -> list[str]:
+    """--metric: comma-separated error columns (bench.gate.statistics.check_error_column)."""
+    items = options.csv(text)
+    if not items:
+        raise argparse.ArgumentTypeError("no error column given")
+    try:
+        return [check_error_column(item) for item in items]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def main(args) -> int:
@@ -30,6 +47,6 @@ def main(args) -> int:
                           error_threshold=args.error_threshold, alpha=args.alpha,
                           compare_changed_versions=args.compare_changed_versions, relative_to=args.relative_to,
                           correction=args.correction, min_runs=args.min_runs,
-                          allow_incomplete=args.allow_incomplete)
+                          allow_incomplete=args.allow_incomplete, metrics=args.metric)
     print(result.markdown())
     return result.exit_code

@@ -30,6 +30,8 @@ DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside",
 QUICK_SCENES = ("cornell_spot", "rooms", "sponza")
 REFERENCE_SPP = 1024        # reference spp cap of `run` and `sweep`
 QUICK_REFERENCE_SPP = 256   # --quick: a first report; the reference floor shows as wider intervals
+ERROR_FRAMES = 8            # untimed frames per row for bias, variance and flicker (RunConfig.error_frames)
+QUICK_ERROR_FRAMES = 4      # --quick
 DEFAULT_RESOLUTION = (320, 180)   # the design point of the interleaved screen-space methods starts here
 DEFAULT_METHODS = ("direct", "ir_unshadowed", "ir_shadowed", "manylights", "flc", "ssdo", "dss", "val_clustered", "pbgi",
                    "visibility_gates")
@@ -44,6 +46,7 @@ SEED_RANGE = (0, 2**31 - 1)            # a seed seeds numpy's SeedSequence (>= 0
 REFERENCE_SPP_RANGE = (MIN_SPP, 1 << 20)   # a variance needs two samples
 TIMING_BUDGET_RANGE_S = (0.0, 3600.0)  # 0: exactly --frames frames
 WORKERS_RANGE = (1, 256)
+ERROR_FRAMES_RANGE = (1, 64)           # bench.run.config.ERROR_FRAMES_RANGE; 1: no error frames
 CASE_TIMEOUT_RANGE_S = (0.0, 86400.0)  # stress --timeout, above 0
 FUZZ_EXAMPLES_RANGE = (1, 1_000_000)
 
@@ -274,6 +277,10 @@ def add_run_options(p, scenes_default) -> None:
                         "method's MSE; a floor above that shows as wider intervals and lower-bound speed-ups). "
                         "4096 takes ~4x the reference time")
     p.add_argument("--no-progress", action="store_true")
+    p.add_argument("--error-frames", type=int_in(*ERROR_FRAMES_RANGE), default=None, metavar="K",
+                   help="after the timed frames, K untimed frames of a fresh instance of each method give its error "
+                        "over frames: bias2, variance, flicker and mse_accumulated columns (default %d, %d with run "
+                        "--quick; 1: none)" % (ERROR_FRAMES, QUICK_ERROR_FRAMES))
     p.add_argument("--shadow-resolution", type=shadow_resolution, default=None, metavar="N",
                    help="side of each light's shadow map tile (default: the smallest power of two >= the image's "
                         "longer side, within 256..2048)")

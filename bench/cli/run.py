@@ -27,7 +27,8 @@ def add_parser(sub) -> None:
     p.add_argument("--quick", action="store_true",
                    help="a first report in minutes: scenes " + ",".join(options.QUICK_SCENES)
                         + " (unless --scenes), the fastest and the default rung of each ladder, timing budget 0.3 s, "
-                        "references capped at %d spp (unless --reference-spp)" % options.QUICK_REFERENCE_SPP)
+                        "references capped at %d spp (unless --reference-spp), %d error frames (unless --error-frames)"
+                        % (options.QUICK_REFERENCE_SPP, options.QUICK_ERROR_FRAMES))
     p.add_argument("--defaults-only", action="store_true",
                    help="run each method at its defaults only (default: its quality ladder, fast -> accurate, "
                         "one time-vs-error curve per method; a method given --param runs those sets instead)")
@@ -68,7 +69,9 @@ def main(args) -> int:
                     (options.QUICK_REFERENCE_SPP if args.quick else options.REFERENCE_SPP),
                     progress=not args.no_progress, ladders=not args.defaults_only,
                     timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers,
-                    shadow_resolution=args.shadow_resolution)
+                    shadow_resolution=args.shadow_resolution,
+                    error_frames=args.error_frames if args.error_frames is not None else
+                    (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES))
     df, runner = serial.run(cfg, log=lambda m: print(m, file=sys.stderr))
     print(runner.summary())
     print(f"results: {runner.run_dir / 'results.csv'}")

@@ -25,7 +25,8 @@ def main(args) -> int:
         force=args.force, views=args.views, references=not args.no_reference,
         reference_spp_cap=args.reference_spp if args.reference_spp is not None else options.REFERENCE_SPP,
         progress=not args.no_progress,
-        shadow_resolution=args.shadow_resolution)
+        shadow_resolution=args.shadow_resolution,
+        error_frames=args.error_frames if args.error_frames is not None else options.ERROR_FRAMES)
     print(runner.summary())
     print(f"{len(table)} sweep points, {len(pareto)} on the Pareto fronts")
     print(f"sweep: {runner.run_dir / 'sweep.csv'}")

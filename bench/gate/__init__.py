@@ -28,14 +28,22 @@ not comparable. For each matched row:
   geometric means above 1 + time_threshold AND an adjusted p below alpha. Fewer runs: the row's
   timing is listed as not tested, never as a pass or fail. Interleave the runs of the two
   sides (A B A B A B) so that slow periods of the machine fall on both.
-* Error: every `<metric>.<component>` column (metrics: bench.protocol.vocabulary.ERROR_METRICS)
-  present in both runs, judged only when both rows were scored against the same references
-  (same `reference_key` and `reference_spp` of every reference the component uses,
-  bench.protocol.vocabulary.REFERENCE_PARTS; otherwise the component is not
-  comparable: refinement depends on which methods ran). MSE is compared after subtracting the
-  references' noise floor (E[(x - r)^2] = (x - mu)^2 + Var r), clamped at 0. A regression when
-  candidate > baseline * (1 + error_threshold) and candidate - baseline exceeds the metric's
-  absolute floor (ERROR_ABS_FLOOR, so 0 vs 1e-12 is not a regression).
+* Error: every `<metric>.<component>` column (metrics: bench.protocol.vocabulary.error_metric_names():
+  the single-frame ERROR_METRICS and the error over frames, DECOMPOSITION_METRICS: bias2,
+  variance, flicker, mse_accumulated and their relative forms) present in both runs, or only
+  the columns `metrics` names (`--metric`: an unknown column is bad input, one a side lacks or
+  no row has on both sides is an error of the gate, exit 2), judged only when both rows were
+  scored against the same references (same `reference_key` and `reference_spp` of every
+  reference the component uses, bench.protocol.vocabulary.REFERENCE_PARTS; otherwise the
+  component is not comparable: refinement depends on which methods ran; `variance` and
+  `flicker`, the spread of the method's own frames, do not depend on the reference). MSE is
+  compared after subtracting the references' noise floor (E[(x - r)^2] = (x - mu)^2 + Var r),
+  clamped at 0; the error over frames has the noise floor removed already, is clamped at 0 (an
+  unbiased method's bias2 estimate scatters about 0) and is compared only between rows of the
+  same error-frame count (`extra.error_frames`). A regression when candidate > baseline *
+  (1 + error_threshold) and candidate - baseline exceeds the metric's absolute floor
+  (ERROR_ABS_FLOOR, so 0 vs 1e-12 is not a regression) and, for an error over frames, the 95%
+  interval of the difference (the two values' `<metric>_ci` intervals over pixels, in quadrature).
 * Rows of the baseline missing from the candidate, and new rows, are listed, not failures (a
   candidate may run a subset).
 * Runs: a side's runs must be distinct runs by content (the run id in each manifest, or for an

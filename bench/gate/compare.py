@@ -11,10 +11,12 @@ import numpy as np
 from bench.gate.load import (cell_float, cell_text, check_distinct_runs, index_rows, load_run, method_index,
                              row_label, side_paths, status_text, without_method_index)
 from bench.gate.presentation import percent_change, report_markdown, verdict_line
-from bench.gate.statistics import (CORRECTIONS, MIN_RUNS, adjust_p_values, error_check, error_columns, noise_floor,
-                                   per_run_times, timing_check)
+from bench.gate.statistics import (CORRECTIONS, MIN_RUNS, REFERENCE_FREE_METRICS, adjust_p_values, check_error_column,
+                                   error_check, error_columns, noise_floor, per_run_times, timing_check)
 from bench.protocol.results import run_progress
-from bench.protocol.vocabulary import REFERENCE_PARTS, Status
+from bench.protocol.vocabulary import DECOMPOSITION_METRICS, REFERENCE_PARTS, Status, interval_column
+
+ERROR_FRAMES = "extra.error_frames"   # how many frames a row's error over frames was measured on
 
 
 @dataclass
@@ -40,6 +42,7 @@ class GateResult:
     correction: str = "holm"
     min_runs: int = MIN_RUNS
     relative_to: str | None = None
+    metrics: tuple = ()   # the error columns compared (--metric); () = every error column of both sides
     baseline_runs: int = 1
     candidate_runs: int = 1
     compared: int = 0
@@ -75,10 +78,13 @@ class GateResult:
 
 def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_threshold: float = 0.05,
                  alpha: float = 0.05, compare_changed_versions: bool = False, relative_to: str | None = None,
-                 correction: str = "holm", min_runs: int = MIN_RUNS, allow_incomplete: bool = False) -> GateResult:
+                 correction: str = "holm", min_runs: int = MIN_RUNS, allow_incomplete: bool = False,
+                 metrics=None) -> GateResult:
     """Compare two sides, each a run folder or a list of run folders (repetitions). A run that did
     not finish (bench.protocol.results.run_progress) is bad input unless `allow_incomplete`, and
-    then named in the verdict; one run listed twice on a side is bad input."""
+    then named in the verdict; one run listed twice on a side is bad input. `metrics`: the error
+    columns to compare (any `<metric>.<component>` of error_metric_names(); an unknown one is bad
+    input, one a side lacks is an error of the gate); None compares every error column both have."""
     for name, value in (("time_threshold", time_threshold), ("error_threshold", error_threshold)):
         if not (isinstance(value, (int, float)) and math.isfinite(value) and value >= 0):
             raise ValueError(f"{name} must be a finite number >= 0, got {value!r}")
@@ -88,6 +94,8 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
         raise ValueError(f"correction must be one of {', '.join(CORRECTIONS)}, got {correction!r}")
     if not (isinstance(min_runs, int) and min_runs >= 2):
         raise ValueError(f"min_runs must be an integer >= 2 (a spread needs two runs), got {min_runs!r}")
+    metrics = tuple(dict.fromkeys(check_error_column(m) for m in ([metrics] if isinstance(metrics, str)
+                                                                   else metrics or ())))
     bpaths, cpaths = side_paths(baseline), side_paths(candidate)
     if not bpaths or not cpaths:
         raise ValueError("each side of the gate needs at least one run folder")
@@ -108,7 +116,7 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
     res = GateResult(bpaths[0] if len(bpaths) == 1 else Path(",".join(map(str, bpaths))),
                      cpaths[0] if len(cpaths) == 1 else Path(",".join(map(str, cpaths))),
                      float(time_threshold), float(error_threshold), float(alpha), correction=correction,
-                     min_runs=min_runs, relative_to=relative_to, baseline_runs=len(bpaths),
+                     min_runs=min_runs, relative_to=relative_to, metrics=metrics, baseline_runs=len(bpaths),
                      candidate_runs=len(cpaths), baseline_rows=len(bdf), candidate_rows=len(cdf),
                      baseline_info=bman, candidate_info=cman, incomplete=incomplete)
     bside = [(index_rows(df, f"baseline {p}", res.notes), m) for p, (df, m) in zip(bpaths, bruns)]
@@ -154,7 +162,16 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
         return res
 
     err_cols = sorted(set(error_columns(bdf.columns)) & set(error_columns(cdf.columns)))
-    lost_errors, ref_differs = 0, 0
+    if metrics:
+        for role, df, paths in (("baseline", bdf, bpaths), ("candidate", cdf, cpaths)):
+            lacking = [m for m in metrics if m not in df.columns]
+            if lacking:
+                over_frames = any(m.split(".", 1)[0] in DECOMPOSITION_METRICS for m in lacking)
+                res.error = (f"the {role} {paths[0]} has no column {', '.join(lacking)} (error columns need references"
+                             + (", an error over frames --error-frames >= 2 too)" if over_frames else ")"))
+                return res
+        err_cols = list(metrics)
+    lost_errors, ref_differs, judged = 0, 0, 0
     unchecked = {"method_version": 0, "scene_hash": 0}   # compared rows whose column a side lacks
     timing: list = []   # (label, result of timing_check, note, base row, cand row)
     for key in common:
@@ -213,6 +230,7 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
 
         # error: only against the same references; MSE net of the references' noise floor
         skipped_components: dict = {}
+        frames_differ, frames_skipped = _error_frames_difference(b, c), False
         for col in err_cols:
             metric, component = col.split(".", 1)
             vb, vc = cell_float(b, col), cell_float(c, col)
@@ -221,17 +239,31 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
             if not math.isfinite(vc):
                 lost_errors += 1
                 continue
-            if component not in skipped_components:
-                skipped_components[component] = _reference_difference(b, c, component)
-            if skipped_components[component] is not None:
+            over_frames = metric in DECOMPOSITION_METRICS
+            if over_frames and frames_differ:
+                frames_skipped = True
                 continue
-            col_note = note
+            if metric not in REFERENCE_FREE_METRICS:
+                if component not in skipped_components:
+                    skipped_components[component] = _reference_difference(b, c, component)
+                if skipped_components[component] is not None:
+                    continue
+            col_note, spread = note, 0.0
             if metric == "mse":
                 fb, fc = noise_floor(b, component), noise_floor(c, component)
                 if fb or fc:
                     vb, vc = max(vb - fb, 0.0), max(vc - fc, 0.0)
                     col_note = "; ".join(x for x in (note, "MSE minus the reference noise floor") if x)
-            verdict = error_check(metric, vb, vc, error_threshold)
+            elif over_frames:
+                # estimates of quantities >= 0 (bias2 of an unbiased method scatters about 0): compared
+                # from 0, and a change within the two values' 95% intervals over pixels is no change
+                vb, vc = max(vb, 0.0), max(vc, 0.0)
+                cb, cc = (abs(cell_float(r, interval_column(metric, component))) for r in (b, c))
+                spread = math.hypot(cb if math.isfinite(cb) else 0.0, cc if math.isfinite(cc) else 0.0)
+                col_note = "; ".join(x for x in (note, f"95% interval of the change +-{spread:.3g}" if spread else "")
+                                     if x)
+            judged += 1
+            verdict = error_check(metric, vb, vc, error_threshold, spread)
             if verdict:
                 f = Finding(label, col, vb, vc, percent_change(vb, vc), None, col_note)
                 (res.regressions if verdict == "regression" else res.improvements).append(f)
@@ -240,6 +272,8 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
             ref_differs += 1
             res.not_comparable.append((label, "errors of " + ", ".join(f"{comp} ({why})" for comp, why in
                                                                      sorted(differing.items())) + " not comparable"))
+        if frames_skipped:
+            res.not_comparable.append((label, f"errors over frames not comparable ({frames_differ})"))
 
     # timing verdicts, adjusted over every tested row
     if timing:
@@ -258,6 +292,9 @@ def compare_runs(baseline, candidate, time_threshold: float = 0.10, error_thresh
             elif ratio < 1 / (1 + time_threshold) and pf < alpha:
                 res.improvements.append(finding)
 
+    if metrics and res.compared and not judged and not res.regressions:
+        res.error = (f"no compared row has a value of {', '.join(metrics)} on both sides (against the same "
+                     f"references and error frames): nothing was judged")
     if res.compared == 0:
         why = ", ".join(f"{n} {r}" for r, n in sorted(reasons.items())) or "every baseline row was skipped"
         res.error = f"nothing was compared: {len(common) + len(paired_b)} matched row(s), none comparable ({why})"
@@ -295,6 +332,15 @@ def _reference_difference(b: dict, c: dict, component: str) -> str | None:
             if vb != vc:
                 short = lambda v: "none" if v is None else (v[:8] if what == "key" else v)
                 return f"reference {part} {what} {short(vb)} -> {short(vc)}"
+    return None
+
+
+def _error_frames_difference(b: dict, c: dict) -> str | None:
+    """Why two rows' errors over frames were measured differently (another frame count K: the
+    accumulated error is that of a K-frame mean, and a temporal method's spread changes with K), or None."""
+    vb, vc = cell_text(b, ERROR_FRAMES), cell_text(c, ERROR_FRAMES)
+    if vb is not None and vc is not None and vb != vc:
+        return f"error frames {vb} -> {vc}"
     return None
 
 

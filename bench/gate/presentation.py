@@ -21,9 +21,10 @@ def report_markdown(result) -> str:
                  f"ratio of geometric means > {1 + result.time_threshold:.3g} (+{result.time_threshold * 100:.3g}%) "
                  f"and the one-sided Welch t-test on log times, {_CORRECTION_NAMES[result.correction]}-adjusted "
                  f"over rows, gives p < {result.alpha:g}; needs >= {result.min_runs} rendered runs per side")
-    lines.append(f"- error: regression when a metric is worse by > {result.error_threshold * 100:.3g}% relative "
-                 f"(and above its absolute floor); MSE minus the references' noise floor; only against "
-                 f"identical references (key and spp)")
+    columns = f"{', '.join(f'`{m}`' for m in result.metrics)} only" if result.metrics else "every error column"
+    lines.append(f"- error ({columns}): regression when a metric is worse by > {result.error_threshold * 100:.3g}% "
+                 f"relative (and above its absolute floor; an error over frames also beyond its 95% interval); MSE "
+                 f"minus the references' noise floor; only against identical references (key and spp)")
     lines.append("")
     if result.error:
         lines += [verdict_line(result), ""]

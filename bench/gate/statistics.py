@@ -9,15 +9,40 @@ import warnings
 import numpy as np
 
 from bench.gate.load import cell_float, cell_text, frame_samples, method_key
-from bench.protocol.vocabulary import ERROR_METRICS, REFERENCE_PARTS, Status
+from bench.protocol.vocabulary import (DECOMPOSITION_COMPONENTS, DECOMPOSITION_METRICS, ERROR_COMPONENTS,
+                                       REFERENCE_PARTS, Status, error_metric_names)
 
 MIN_RUNS = 3
 CORRECTIONS = ("holm", "bh")
 # Absolute floors below which an error change is noise, not a regression: float32 images give
-# metric noise well below these; each is far below any error a GI method actually makes.
+# metric noise well below these; each is far below any error a GI method actually makes. The
+# error over frames has the floors of the metric it splits (radiance^2: mse's; relative: relmse's).
 ERROR_ABS_FLOOR = {"mse": 1e-10, "relmse": 1e-8, "smape": 1e-6, "dssim": 1e-6, "flip_mean": 1e-6,
-                   "flip_median": 1e-6, "ciede2000": 1e-4}
-_ERROR_COLUMN = re.compile(r"^(%s)\.([A-Za-z0-9_]+)$" % "|".join(re.escape(m) for m in ERROR_METRICS))
+                   "flip_median": 1e-6, "ciede2000": 1e-4,
+                   "mse_accumulated": 1e-10, "variance": 1e-10, "bias2": 1e-10, "flicker": 1e-10,
+                   "rel_mse_accumulated": 1e-8, "rel_variance": 1e-8, "rel_bias2": 1e-8, "rel_flicker": 1e-8}
+# The error over frames whose value does not depend on the reference (the spread of the method's
+# own frames): compared even when the two sides' references differ in sample count.
+REFERENCE_FREE_METRICS = ("variance", "flicker")
+_ERROR_COLUMN = re.compile(r"^(%s)\.([A-Za-z0-9_]+)$" % "|".join(re.escape(m) for m in error_metric_names()))
+
+
+def error_column_components(metric: str) -> tuple:
+    """The components an error metric has columns for."""
+    return DECOMPOSITION_COMPONENTS if metric in DECOMPOSITION_METRICS else ERROR_COMPONENTS
+
+
+def check_error_column(name: str) -> str:
+    """`name` if it names an error column (`<metric>.<component>`, bench.protocol.vocabulary:
+    error_metric_names() and the metric's components), else ValueError (one line)."""
+    metric, _, component = str(name).strip().partition(".")
+    if metric not in error_metric_names():
+        raise ValueError(f"unknown error column {name!r}: a column is <metric>.<component>, metric one of "
+                         f"{', '.join(error_metric_names())}")
+    if component not in error_column_components(metric):
+        raise ValueError(f"unknown error column {name!r}: {metric} has the components "
+                         f"{', '.join(error_column_components(metric))}")
+    return f"{metric}.{component}"
 
 
 # ---------------------------------------------------------------------------- timing
@@ -100,10 +125,11 @@ def error_columns(columns) -> list[str]:
     return sorted(c for c in columns if _ERROR_COLUMN.match(str(c)))
 
 
-def error_check(metric: str, base: float, cand: float, threshold: float) -> str | None:
+def error_check(metric: str, base: float, cand: float, threshold: float, spread: float = 0.0) -> str | None:
     """The verdict on one error value: "regression", "improvement" or None (a change beyond the
-    relative `threshold` and the metric's absolute floor)."""
-    floor = ERROR_ABS_FLOOR.get(metric, 0.0)
+    relative `threshold`, the metric's absolute floor and `spread`: for an error over frames, the
+    95% interval of the difference, from the two values' intervals over pixels)."""
+    floor = max(ERROR_ABS_FLOOR.get(metric, 0.0), spread if math.isfinite(spread) else 0.0)
     if cand - base > floor and (base <= 0 or (cand - base) / base > threshold):
         return "regression"
     if base - cand > floor and base > 0 and (base - cand) / base > threshold:

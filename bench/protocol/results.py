@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from bench.protocol.vocabulary import METRIC_NAMES, Status
+from bench.protocol.vocabulary import DECOMPOSITION_METRICS, INTERVAL_SUFFIX, METRIC_NAMES, Status
 
 SCHEMA_VERSION = 1
 KEY_COLUMNS = ("scene", "view", "method", "params", "seed")
@@ -40,8 +40,10 @@ RUN_LOCK = ".gibench-run.lock"  # flock'ed by the run writing the folder (bench.
 IDENTITY_COLUMNS = ("scene", "view", "method", "params", "seed", "status")
 IMAGE_ROW_COLUMNS = ("width", "height", "image_dir")   # what a row with images (ok, cached) needs besides
 NUMERIC_COLUMNS = ("seed", "width", "height", "frames", "warmup", "frame_ms", "frame_ms_iqr", "gpu_ms", "prepare_ms",
-                   "frames_total_ms", "row_wall_ms", "harness_overhead", "peak_rss_mb", "timing_lock_wait_ms")
-NUMERIC_PREFIXES = ("stage_ms.", "reference_spp.", "reference_noise_floor.") + tuple(f"{m}." for m in METRIC_NAMES)
+                   "frames_total_ms", "row_wall_ms", "harness_overhead", "peak_rss_mb", "timing_lock_wait_ms",
+                   "error_frames_ms", "extra.error_frames")
+NUMERIC_PREFIXES = (("stage_ms.", "reference_spp.", "reference_noise_floor.") + tuple(f"{m}." for m in METRIC_NAMES)
+                    + tuple(f"{m}{suffix}." for m in DECOMPOSITION_METRICS for suffix in ("", INTERVAL_SUFFIX)))
 JSON_COLUMNS = {"params": dict, "samples.frame_ms": list, "samples.stage_ms": dict}   # cells of JSON text
 BASE_COLUMNS = ("scene", "scene_hash", "view", "method", "params", "seed", "width", "height", "frames", "warmup",
                 "frame_ms", "frame_ms_iqr", "gpu_ms", "status", "method_version", "row_key",

@@ -30,6 +30,22 @@ JUDGES = {"direct": "direct", "indirect_unshadowed": "indirect", "indirect_visib
 CURVE_COMPONENTS = {"direct": "direct", "indirect": "indirect_unshadowed", "indirect_visible": "indirect_visible",
                     "combined": "combined"}
 
+# The error frames (bench.run.harness): K more frames of a row, rendered by a fresh instance
+# outside every timed region; per component the per-pixel mean, variance and flicker over them,
+# written beside the row's images as `<component>_frames_<statistic>.exr`.
+FRAME_STAT_COMPONENTS = ("indirect", "combined")
+FRAME_STATISTICS = ("mean", "var", "flicker")
+
+
+def frame_stat_image(component: str, statistic: str) -> str:
+    """The image name (file stem) of one statistic of a component over the error frames."""
+    return f"{component}_frames_{statistic}"
+
+
+FRAME_STAT_IMAGES = tuple(frame_stat_image(c, s) for c in FRAME_STAT_COMPONENTS for s in FRAME_STATISTICS)
+# The error components the frame statistics judge: those whose method image has statistics.
+DECOMPOSITION_COMPONENTS = tuple(c for c, (image, _) in COMPARISONS.items() if image in FRAME_STAT_COMPONENTS)
+
 # ---------------------------------------------------------------------------- timing
 # The stages of the shared passes every method of a view reads (bench.gl.passes renders them):
 # tables put them first, in this order.
@@ -41,10 +57,27 @@ SHARED_STAGES = ("gbuffer_shadow", "direct_light", "rsm")
 ERROR_METRICS = ("mse", "relmse", "smape", "dssim", "flip_mean", "flip_median", "ciede2000")
 BIAS_METRICS = ("mean_ratio",)
 METRIC_NAMES = ERROR_METRICS + BIAS_METRICS
+# The error over frames (bench.analysis.evaluation documents each; components DECOMPOSITION_COMPONENTS,
+# rows rendered with more than one error frame): lower is better, each with a 95% interval over
+# pixels in `<metric>_ci.<component>`.
+DECOMPOSITION_METRICS = ("mse_accumulated", "variance", "bias2", "flicker",
+                         "rel_mse_accumulated", "rel_variance", "rel_bias2", "rel_flicker")
+INTERVAL_SUFFIX = "_ci"
 
 
 def metric_column(metric: str, component: str) -> str:
     return f"{metric}.{component}"
+
+
+def interval_column(metric: str, component: str) -> str:
+    """The column of a decomposition metric's 95% interval (half-width) over pixels."""
+    return f"{metric}{INTERVAL_SUFFIX}.{component}"
+
+
+def error_metric_names() -> tuple:
+    """Every "lower is better" error metric a row can carry: the single-frame ones (ERROR_METRICS)
+    and the error over frames (DECOMPOSITION_METRICS), for the gate and the tables."""
+    return ERROR_METRICS + DECOMPOSITION_METRICS
 
 
 # ---------------------------------------------------------------------------- row statuses

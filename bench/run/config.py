@@ -11,6 +11,9 @@ from bench.protocol.registry import load_method
 from bench.run.harness import TimingBudget
 
 
+ERROR_FRAMES_RANGE = (1, 64)   # RunConfig.error_frames, `--error-frames`
+
+
 def cache_root() -> Path:
     """The row, reference and metric caches: $GIBENCH_CACHE_DIR, else ~/.cache/gibench."""
     return Path(os.environ.get("GIBENCH_CACHE_DIR", Path.home() / ".cache" / "gibench"))
@@ -37,10 +40,12 @@ class RunConfig:
     timing_budget_s: float | None = None            # calibrated timing (>= `frames` frames), None: `frames` exactly
     scheduler: str | None = None                    # a dask.distributed scheduler address (bench.run.cluster)
     workers: int | None = None                      # or a LocalCluster of this many worker processes
+    error_frames: int = 8                           # untimed frames of a fresh instance per row (bias, variance, flicker); 1: none
 
     def validate(self) -> None:
         for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
-                                       ("frames", self.frames, 1, 10000), ("warmup", self.warmup, 1, 1000)):
+                                       ("frames", self.frames, 1, 10000), ("warmup", self.warmup, 1, 1000),
+                                       ("error_frames", self.error_frames, ERROR_FRAMES_RANGE[0], ERROR_FRAMES_RANGE[1])):
             if not (low <= int(value) <= high):
                 raise ValueError(f"{name}={value} outside [{low}, {high}]")
         if self.timing_budget_s is not None and not (0.0 <= float(self.timing_budget_s) <= 3600.0):

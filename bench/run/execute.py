@@ -1,7 +1,8 @@
 """Executing one row: the one function every execution path renders rows through.
 
 `render_outcome` renders a method on a view (bench.run.harness.run_method: prepare untimed,
-warm-up and timed frames, images read back) and writes nothing: the serial runner
+warm-up and timed frames, images read back, then `cfg.error_frames` untimed frames of a fresh
+instance whose per-pixel statistics come back as images too) and writes nothing: the serial runner
 (bench.run.serial), a Dask worker (bench.run.cluster) and the stress suite (bench.stress) all
 call it and then record the outcome their own way. `SharedPassCache` holds a view's shared
 passes (GBuffer, shadow maps, direct light, RSM), rendered and measured once and lent to every
@@ -73,7 +74,7 @@ def render_outcome(ctx, gpu, cfg: RunConfig, cls, scene, facts, view: str, param
         result = run_method(ctx, cls, scene, view, cfg.width, cfg.height, params, seed=cfg.seed,
                             warmup=cfg.warmup, frames=cfg.frames, facts=facts,
                             shadow_resolution=effective_shadow_resolution(cfg), gpu=gpu, timing=timing_budget(cfg),
-                            shared=shared, allow_nonfinite=keep_nonfinite)
+                            shared=shared, allow_nonfinite=keep_nonfinite, error_frames=cfg.error_frames)
     except SkipRow as exc:
         return {"status": Status.SKIPPED, "reason": str(exc)}
     except Exception as exc:
@@ -94,12 +95,14 @@ def render_outcome(ctx, gpu, cfg: RunConfig, cls, scene, facts, view: str, param
     for stage in result.skipped_stages:
         measured.setdefault(f"stage_ms.{stage}", float("nan"))
     measured.update({"gpu_ms": gpu_total, "stage_clock": result.stage_clock, "prepare_ms": result.prepare_ms,
-                     "frames_total_ms": result.frames_total_ms, "peak_rss_mb": peak_rss_mb()})
+                     "frames_total_ms": result.frames_total_ms, "error_frames_ms": result.error_frames_ms,
+                     "peak_rss_mb": peak_rss_mb()})
     for k, v in result.extra.items():
         if isinstance(v, (int, float, str, bool)):
             measured[f"extra.{k}"] = v
     images = {"direct": np.asarray(result.direct, np.float32), "indirect": np.asarray(result.indirect, np.float32),
               "combined": np.asarray(result.combined, np.float32)}
+    images.update(result.frame_stats)   # the error frames' statistics (error_frames > 1), written beside them
     return {"status": Status.OK, "measured": measured, "images": images}
 
 

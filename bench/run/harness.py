@@ -19,6 +19,19 @@ records the reuse (`shared_passes_reused`, `shared_ms` = the added constant, `ow
 frame time (each frame charged its shared cost too), so it bounds a row's frames as before.
 Without it (tests, direct calls, a method with `reuses_shared_passes = False`) each frame
 renders the passes as before.
+
+Error frames (`error_frames` = K > 1): after the timed frames, outside every timed region, a
+fresh instance of the method is prepared (untimed) and renders K frames of the same static
+view, frame indices 0..K-1, as an application would after a cut: its per-frame random streams
+and any temporal state it keeps evolve from frame 0. A fresh instance because the timed
+instance's state depends on how many frames the calibrated timing rendered; from a fresh one,
+frame 0 is the row's own image and the K frames depend only on the seed. Per image component
+(`indirect`, `combined`) `FrameStatistics` keeps, per pixel, the mean, the unbiased variance
+over the K frames and the flicker D = mean over consecutive pairs of (f_{k+1} - f_k)^2; the row
+gets them as images (`<component>_frames_{mean,var,flicker}`, bench.protocol.vocabulary) and
+records K in `extra.error_frames`. Nothing timed changes: frame_ms, stage_ms and the row's
+images are those of the timed instance; the error pass's own wall time (prepare included) is
+`error_frames_ms`.
 """
 from __future__ import annotations
 
@@ -33,6 +46,7 @@ from bench.gl.passes import stages_for_needs
 from bench.gl.profiler import default_clock
 from bench.protocol.method import FrameOutput, resolve_params
 from bench.protocol.results import timing_settled
+from bench.protocol.vocabulary import FRAME_STAT_COMPONENTS, frame_stat_image
 from bench.model.scene import Scene, SceneFacts, compute_facts
 
 
@@ -48,10 +62,47 @@ class RenderResult:
     stage_clock: str = ""                               # how stage_ms were measured (profiler.CLOCKS)
     prepare_ms: float = 0.0                             # the method's untimed prepare (precomputation)
     frames_total_ms: float = 0.0                        # wall time of every frame rendered (warm-up included)
+    frame_stats: dict = field(default_factory=dict)     # error frames: image name -> HxWx3 float32 (FRAME_STAT_IMAGES)
+    error_frames_ms: float = 0.0                        # wall time of the error frames' pass (fresh prepare included)
 
     @property
     def combined(self) -> np.ndarray:
         return self.direct + self.indirect
+
+
+class FrameStatistics:
+    """Per-pixel statistics of a stream of frames of one image component: the mean, the unbiased
+    variance (K - 1 denominator) and the flicker, the mean over consecutive pairs of the squared
+    difference. Sums in float64 shifted by the first frame, so frames that are all the same give
+    exactly that frame as the mean and exactly 0 as the variance and the flicker."""
+
+    def __init__(self):
+        self.count = 0
+        self.first = self.previous = None
+        self.sum_d = self.sum_d2 = self.sum_step2 = None
+
+    def add(self, image) -> None:
+        x = np.asarray(image, dtype=np.float64)
+        if self.first is None:
+            self.first = x
+            self.sum_d, self.sum_d2, self.sum_step2 = np.zeros_like(x), np.zeros_like(x), np.zeros_like(x)
+        else:
+            d = x - self.first
+            self.sum_d += d
+            self.sum_d2 += d * d
+            self.sum_step2 += (x - self.previous) ** 2
+        self.previous = x
+        self.count += 1
+
+    def images(self) -> dict:
+        """{"mean", "var", "flicker"} as HxWx3 float32; needs at least two frames."""
+        k = self.count
+        if k < 2:
+            raise ValueError(f"frame statistics need at least 2 frames, got {k}")
+        mean = self.first + self.sum_d / k
+        var = np.maximum((self.sum_d2 - self.sum_d * self.sum_d / k) / (k - 1), 0.0)
+        return {"mean": mean.astype(np.float32), "var": var.astype(np.float32),
+                "flicker": (self.sum_step2 / (k - 1)).astype(np.float32)}
 
 
 @dataclass(frozen=True)
@@ -177,7 +228,8 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
                params: dict | None = None, seed: int = 0, warmup: int = 1, frames: int = 3,
                facts: SceneFacts | None = None, gpu: GpuScene | None = None,
                shadow_resolution: int = 1024, timing: "TimingBudget | None" = None,
-               shared: SharedViewPasses | None = None, allow_nonfinite: bool = False) -> RenderResult:
+               shared: SharedViewPasses | None = None, allow_nonfinite: bool = False,
+               error_frames: int = 1) -> RenderResult:
     """`frames` timed frames, or with `timing` at least `frames` and then as many as its
     budget and the median's confidence interval call for (see bench.protocol.results.timing_settled).
 
@@ -187,11 +239,16 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
     and stage_ms carries those stages' samples from the shared measurement. A method class with
     `reuses_shared_passes = False` ignores `shared` and renders passes of its own every frame.
     Images with NaN or Inf pixels raise FloatingPointError, unless `allow_nonfinite` (the stress
-    suite, which counts them)."""
+    suite, which counts them).
+
+    `error_frames` K > 1: then K frames of a fresh instance, untimed (the module's docstring),
+    give `frame_stats`; 1 renders none."""
     if warmup < 1:
         raise ValueError("warmup must be >= 1 (frame 0 gives the images)")
     if frames < 1:
         raise ValueError("frames must be >= 1")
+    if not 1 <= int(error_frames) <= 64:
+        raise ValueError(f"error_frames={error_frames} outside [1, 64]")
     if shared is not None and not getattr(method_cls, "reuses_shared_passes", True):
         shared = None
     if shared is not None:
@@ -282,9 +339,20 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
             if not allow_nonfinite and not np.all(np.isfinite(img)):
                 bad = int((~np.isfinite(img)).any(axis=2).sum())
                 raise FloatingPointError(f"method '{method_cls.name}' produced {bad} non-finite {name} pixels")
+        result.extra["error_frames"] = int(error_frames)
+        if error_frames > 1:
+            method.release()   # the timed instance's state is not the error frames' (fresh instance)
+            method = None
+            t_error = time.perf_counter()
+            method = method_cls()
+            result.frame_stats = _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, passes,
+                                               shared is not None, prof, seed, shape, int(error_frames),
+                                               allow_nonfinite)
+            result.error_frames_ms = (time.perf_counter() - t_error) * 1e3
         return result
     finally:
-        method.release()
+        if method is not None:
+            method.release()
         if shared is None:
             passes.release()
         prof_release = locals().get("prof")
@@ -292,3 +360,32 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
             prof_release.release()
         if own_gpu:
             gpu.release()
+
+
+def _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, passes, lent: bool, prof, seed: int,
+                  shape, count: int, allow_nonfinite: bool) -> dict:
+    """Prepare the fresh `method` and render frames 0..count-1 untimed (the profiler off), passes
+    restored (`lent`) or rendered in each frame; the per-pixel statistics of each component as
+    {frame_stat_image(component, statistic): HxWx3 float32}."""
+    method.prepare(gpu, scene, facts, params, view)
+    ctx.finish()
+    check_gl(ctx, f"method '{method_cls.name}' prepare (error frames)")
+    stats = {c: FrameStatistics() for c in FRAME_STAT_COMPONENTS}
+    prof.enabled = False
+    for index in range(count):
+        prof.begin_frame()
+        frame = Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=index, seed=seed)
+        if lent:
+            passes.restore_state(method_cls.needs)
+        else:
+            passes.render(prof)
+        out: FrameOutput = method.render(frame, prof)
+        ctx.finish()
+        check_gl(ctx, f"method '{method_cls.name}' error frame {index}")
+        direct, indirect = to_numpy(out.direct, shape), to_numpy(out.indirect, shape)
+        if not allow_nonfinite and not (np.all(np.isfinite(direct)) and np.all(np.isfinite(indirect))):
+            raise FloatingPointError(f"method '{method_cls.name}' produced non-finite pixels in error frame {index}")
+        images = {"indirect": indirect, "combined": direct + indirect}   # as RenderResult.combined
+        for component, acc in stats.items():
+            acc.add(images[component])
+    return {frame_stat_image(c, name): img for c, acc in stats.items() for name, img in acc.images().items()}

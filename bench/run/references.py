@@ -16,7 +16,8 @@ import numpy as np
 from bench.analysis.evaluation import evaluate_row
 from bench.model.imageio import read_exr, write_exr
 from bench.protocol import results as store
-from bench.protocol.vocabulary import IMAGE_COMPONENTS, JUDGES, REFERENCE_COMPONENTS, Status, failure_reason
+from bench.protocol.vocabulary import (FRAME_STAT_IMAGES, IMAGE_COMPONENTS, JUDGES, REFERENCE_COMPONENTS, Status,
+                                       failure_reason)
 from bench.run.config import RunConfig, cache_root
 from bench.run.row_cache import json_default
 from reference.api import ReferenceUnavailable, get_reference
@@ -114,7 +115,7 @@ class ReferenceProvider:
         memo = cache_root() / "metrics"
         try:
             for row, refs in jobs:
-                row.update(judge_row(self.run_dir / row["image_dir"], refs, memo))
+                row.update(judge_row(self.run_dir / row["image_dir"], refs, memo, row.get("extra.error_frames")))
                 if progress is not None:
                     progress.update(1)
         finally:
@@ -184,8 +185,19 @@ class ReferenceProvider:
             store.atomic_write_text(self.run_dir / "reference_curves.json", json.dumps(self._curves, default=json_default))
 
 
-def judge_row(image_dir: Path, refs: dict, memo_dir) -> dict:
-    """Error columns of one row (its image folder) against its view's references."""
+def judge_row(image_dir: Path, refs: dict, memo_dir, error_frames=None) -> dict:
+    """Error columns of one row (its image folder) against its view's references: with more than
+    one error frame, the decomposition columns too, from the frame statistics' images and the
+    references' variance images (a row whose statistics are missing gets none)."""
     images = {c: read_exr(Path(image_dir) / f"{c}.exr") for c in IMAGE_COMPONENTS}
-    return evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()}, memo_dir=memo_dir)
+    try:
+        frames = int(error_frames)
+    except (TypeError, ValueError):   # a row of an older run (NaN, missing): no error frames
+        frames = 1
+    stats = None
+    if frames > 1 and all((Path(image_dir) / f"{n}.exr").is_file() for n in FRAME_STAT_IMAGES):
+        stats = {n: read_exr(Path(image_dir) / f"{n}.exr") for n in FRAME_STAT_IMAGES}
+    return evaluate_row(images, {c: (r.mean if r is not None else None) for c, r in refs.items()}, memo_dir=memo_dir,
+                        ref_variances={c: (r.variance if r is not None else None) for c, r in refs.items()},
+                        frame_stats=stats, error_frames=frames)
 

@@ -3,11 +3,13 @@ that decides them, so an unchanged row is never rendered twice.
 
 The key (`row_cache_key`) covers the scene's content and the camera, the method's name and
 version (a hash of the code its images depend on: bench.protocol.versioning), its resolved
-parameters, the resolution, frames, warm-up, seed, shadow-map size, timing budget, the GL
-renderer, the stage clock and the timing harness's version. An entry (`<cache>/rows/<ab>/<key>/`)
-holds `row.json` = {"format", "row", "row_sha256", "files": {name: sha256}} and the row's EXRs;
-a hit takes the measured values from the entry and every label from the current run. An entry
-that fails its checks is a miss, evicted with a one-line warning.
+parameters, the resolution, frames, warm-up, error frames, seed, shadow-map size, timing
+budget, the GL renderer, the stage clock and the timing harness's version. An entry
+(`<cache>/rows/<ab>/<key>/`) holds `row.json` = {"format", "row", "row_sha256", "files": {name:
+sha256}} and the row's EXRs (with more than one error frame, the frame statistics' EXRs too:
+`row_image_names`); a hit takes the measured values from the entry and every label from the
+current run. An entry that fails its checks (a checksum, a missing image, another error-frame
+count than the run's) is a miss, evicted with a one-line warning.
 """
 from __future__ import annotations
 
@@ -20,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.protocol.versioning import harness_version
-from bench.protocol.vocabulary import IMAGE_COMPONENTS
+from bench.protocol.vocabulary import FRAME_STAT_IMAGES, IMAGE_COMPONENTS
 from bench.run.config import RunConfig, cache_root, effective_shadow_resolution
 
 ROW_CACHE_FORMAT = 2
@@ -40,6 +42,19 @@ def file_sha256(path: Path) -> str:
     return h.hexdigest()
 
 
+def row_image_names(error_frames) -> tuple:
+    """The images (file stems) a row holds: its components, and the frame statistics when it
+    rendered more than one error frame."""
+    return IMAGE_COMPONENTS + (FRAME_STAT_IMAGES if _frames(error_frames) > 1 else ())
+
+
+def _frames(value) -> int:
+    try:
+        return int(value)
+    except (TypeError, ValueError):
+        return 1
+
+
 def row_sha256(row: dict) -> str:
     return hashlib.sha256(json.dumps(row, sort_keys=True, default=json_default).encode()).hexdigest()
 
@@ -49,6 +64,7 @@ def row_cache_key(scene, camera: str, method: str, version: str, params: dict, c
     payload = {"scene": scene.content_hash(), "camera": camera, "camera_def": scene.cameras[camera].to_dict(),
                "method": method, "method_version": version, "params": params, "width": cfg.width,
                "height": cfg.height, "frames": cfg.frames, "warmup": cfg.warmup, "seed": cfg.seed,
+               "error_frames": int(cfg.error_frames),
                "shadow_resolution": effective_shadow_resolution(cfg), "renderer": renderer, "stage_clock": stage_clock,
                "harness": harness_version()}
     if cfg.timing_budget_s is not None:
@@ -56,8 +72,9 @@ def row_cache_key(scene, camera: str, method: str, version: str, params: dict, c
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
-def entry_problem(d: Path) -> str | None:
-    """Why a row cache entry cannot be trusted (one phrase), or None when every checksum holds."""
+def entry_problem(d: Path, error_frames: int = 1) -> str | None:
+    """Why a row cache entry cannot be trusted (one phrase), or None when every checksum holds and
+    it holds the images of a row of `error_frames` error frames."""
     try:
         entry = json.loads((d / "row.json").read_bytes())
     except FileNotFoundError:
@@ -73,8 +90,10 @@ def entry_problem(d: Path) -> str | None:
         return "has a row.json whose checksum does not match"
     if not all(isinstance(row.get(k), str) for k in ("scene", "method", "status")):
         return "has a row without scene, method or status"
-    for comp in IMAGE_COMPONENTS:
-        name = f"{comp}.exr"
+    held = _frames(row.get("extra.error_frames", 1))
+    if held != _frames(error_frames):
+        return f"holds {held} error frame(s), the run asks for {error_frames}"
+    for name in (f"{c}.exr" for c in row_image_names(error_frames)):
         try:
             ok = files.get(name) == file_sha256(d / name)
         except OSError:
@@ -94,12 +113,12 @@ class RowCache:
     def entry_dir(self, key: str) -> Path:
         return self.root / key[:2] / key
 
-    def lookup(self, key: str):
+    def lookup(self, key: str, error_frames: int = 1):
         """(row, entry folder) of a verified cache entry, or None; a bad entry is evicted with a warning."""
         d = self.entry_dir(key)
         if not d.is_dir():
             return None
-        problem = entry_problem(d)
+        problem = entry_problem(d, error_frames)
         if problem is None:
             entry = json.loads((d / "row.json").read_bytes())
             return dict(entry["row"]), d
@@ -107,14 +126,14 @@ class RowCache:
         self.log(f"gibench: warning: row cache entry {d} {problem}: evicted, the row is rendered again")
         return None
 
-    def restore(self, key: str, image_dir: Path):
+    def restore(self, key: str, image_dir: Path, error_frames: int = 1):
         """A verified entry's row, its images copied into `image_dir`; None on a miss."""
-        hit = self.lookup(key)
+        hit = self.lookup(key, error_frames)
         if hit is None:
             return None
         row, entry_dir = hit
         image_dir.mkdir(parents=True, exist_ok=True)
-        for comp in IMAGE_COMPONENTS:
+        for comp in row_image_names(error_frames):
             shutil.copyfile(entry_dir / f"{comp}.exr", image_dir / f"{comp}.exr")
         return row
 
@@ -126,7 +145,7 @@ class RowCache:
                 shutil.rmtree(tmp)
             tmp.mkdir(parents=True)
             files = {}
-            for comp in IMAGE_COMPONENTS:
+            for comp in row_image_names(row.get("extra.error_frames", 1)):
                 shutil.copyfile(image_dir / f"{comp}.exr", tmp / f"{comp}.exr")
                 files[f"{comp}.exr"] = file_sha256(tmp / f"{comp}.exr")
             clean = json.loads(json.dumps(row, default=json_default))

@@ -7,10 +7,12 @@ method and rung of the view (bench.run.execute.SharedPassCache): a row's frames 
 method, and its frame time adds the measured medians of the shared stages it needs (recorded in
 the row's `extra.shared_*` and in the manifest's `shared_passes`). Every row is rendered by
 bench.run.execute.render_outcome (prepare untimed, warm-up + K timed frames), here or in a Dask
-worker (bench.run.cluster); the runner writes linear EXRs of direct, indirect and combined and
-appends one row to the run's results table (written atomically after every row). The row cache
-(bench.run.row_cache) means a row whose scene content, method version, parameters, resolution,
-frames, seed and machine are unchanged is not re-run (`force=True` re-runs); an interrupted run
+worker (bench.run.cluster); the runner writes linear EXRs of direct, indirect and combined (and,
+with `error_frames` > 1, the per-pixel mean, variance and flicker of indirect and combined over
+the error frames: bench.run.harness) and appends one row to the run's results table (written
+atomically after every row). The row cache (bench.run.row_cache) means a row whose scene
+content, method version, parameters, resolution, frames, error frames, seed and machine are
+unchanged is not re-run (`force=True` re-runs); an interrupted run
 resumes from its results table (bench.run.plan.RunState). A method that fails (to load, to
 prepare, to render) becomes a `failed: <reason>` row and the run goes on with the others.
 
@@ -62,7 +64,7 @@ from bench.run.config import RunConfig, auto_shadow_resolution, effective_shadow
 from bench.run.execute import SharedPassCache, render_outcome
 from bench.run.manifest import record_phases, write_manifest
 from bench.run.references import ReferenceProvider
-from bench.run.row_cache import RowCache, row_cache_key
+from bench.run.row_cache import RowCache, row_cache_key, row_image_names
 
 
 class Runner:
@@ -98,7 +100,7 @@ class Runner:
         self.shared_summary: dict = {}  # "scene/view" -> variant -> measurement summary (manifest)
         # wall seconds per phase of the run (the manifest records them)
         self.phases = {"setup": time.perf_counter() - t_setup, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0,
-                       "rows_other": 0.0, "references": 0.0, "metrics": 0.0}
+                       "error_frames": 0.0, "rows_other": 0.0, "references": 0.0, "metrics": 0.0}
 
     def _validate_params(self) -> dict:
         """Every --param of every method, checked before the first row: {(method, i): resolved}."""
@@ -285,10 +287,11 @@ class Runner:
         image_dir = self.run_dir / "images" / scene.name / view / plan.image_folder(method_name, params, cls)
         row["image_dir"] = str(image_dir.relative_to(self.run_dir))
 
-        if (key, row["image_dir"]) in resumable and (image_dir / "combined.exr").is_file():
+        if (key, row["image_dir"]) in resumable and \
+                all((image_dir / f"{name}.exr").is_file() for name in row_image_names(cfg.error_frames)):
             self.counts["resumed"] += 1
             return {"done": True, "row": dict(resumable[(key, row["image_dir"])], **row)}
-        cached = None if cfg.force else self.cache.restore(key, image_dir)
+        cached = None if cfg.force else self.cache.restore(key, image_dir, cfg.error_frames)
         if cached is not None:
             cached.update(row)  # measured values from the cache, every label from this run
             cached["status"] = Status.CACHED
@@ -359,10 +362,13 @@ class Runner:
         self.account_method(row, seconds - reference_s - shared_s - wait_s)
 
     def account_method(self, row: dict, row_s: float) -> None:
-        """Charge a rendered row's prepare and frames to their phases, the rest of `row_s` to the harness."""
-        method_s = (float(row.get("prepare_ms", 0.0)) + float(row.get("frames_total_ms", 0.0))) / 1e3
+        """Charge a rendered row's prepare, frames and error frames to their phases, the rest of
+        `row_s` to the harness."""
+        error_s = float(row.get("error_frames_ms", 0.0)) / 1e3   # the untimed error frames (fresh prepare included)
+        method_s = (float(row.get("prepare_ms", 0.0)) + float(row.get("frames_total_ms", 0.0))) / 1e3 + error_s
         self.phases["precompute"] += float(row.get("prepare_ms", 0.0)) / 1e3
         self.phases["timing"] += float(row.get("frames_total_ms", 0.0)) / 1e3
+        self.phases["error_frames"] += error_s
         self.phases["rows_other"] += max(row_s - method_s, 0.0)
         row["row_wall_ms"] = row_s * 1e3
         row["harness_overhead"] = max(row_s - method_s, 0.0) / row_s if row_s > 0 else float("nan")

@@ -21,9 +21,11 @@ class CaseResult:
 
 
 def case_config(scene: Scene, cls, width: int, height: int, seed: int) -> RunConfig:
-    """The RunConfig of one case: 1 warm-up and 1 timed frame, no timing budget, no references."""
+    """The RunConfig of one case: 1 warm-up and 1 timed frame, no timing budget, no references, no
+    error frames (the suite judges the images of one frame)."""
     return RunConfig(scenes=[scene.name], methods=[cls.name], width=width, height=height, frames=1, warmup=1,
-                     seed=seed, references=False, shadow_resolution=SHADOW_RESOLUTION, timing_budget_s=None)
+                     seed=seed, references=False, shadow_resolution=SHADOW_RESOLUTION, timing_budget_s=None,
+                     error_frames=1)
 
 
 def run_case(ctx, cls, scene: Scene, view: str, width: int, height: int, params: dict, seed: int) -> CaseResult:
