@@ -160,5 +160,13 @@ def test_flc_bias_against_mitsuba_is_its_targets():
     # no target row: not measured; no error over frames (an old run): no row at all
     only_flc = table[table["method"] == "flc"]
     assert reproduction.flc_unbiased(only_flc)[0]["status"] == "not measured"
+    # the centroid sum is not FLC's target (FLC jitters its VPLs): not measured either
+    centroid = table[~table["params"].str.contains('"jitter_frames": 64')]
+    assert reproduction.flc_unbiased(centroid)[0]["status"] == "not measured"
+    # an flc row with eq. 5 as printed (near_field=paper_eps) is the one judged, not the default
+    paper = pd.concat([table, pd.DataFrame([frames("flc", 0.049, 0.002, params={"near_field": "paper_eps"})])],
+                      ignore_index=True)
+    [r] = reproduction.flc_unbiased(paper)
+    assert r["status"] == "reproduced" and "near_field: paper_eps" in r["note"]
     assert reproduction.flc_unbiased(only_flc.drop(columns=["rel_bias2.indirect"])) == []
     assert reproduction.flc_unbiased(only_flc.assign(**{"rel_bias2.indirect": np.nan})) == []
