@@ -418,3 +418,46 @@ def test_results_tables_hold_the_error_over_frames_as_numbers(tmp_path):
     df.to_csv(tmp_path / "results.csv", index=False)
     with pytest.raises(ResultsError, match="variance_ci.indirect holds 'wide' in row 2"):
         load_results(tmp_path)
+
+
+class FalselyIdentical(KnownNoise):
+    """Declares identical frames but draws new noise every frame."""
+    name = "falsely_identical"
+
+    @classmethod
+    def frames_identical(cls, params):
+        return True
+
+
+class TrulyIdentical(KnownNoise):
+    """Declares identical frames and renders the same frame every time."""
+    name = "truly_identical"
+    rendered = 0
+
+    @classmethod
+    def frames_identical(cls, params):
+        return True
+
+    def frame_noise(self, index):
+        TrulyIdentical.rendered += 1
+        return noise(0, *self.mu.shape[:2])
+
+
+def test_declared_identical_frames_render_two_and_are_checked(gl_ctx):
+    """A method that declares identical frames renders 2 of the K error frames, and its statistics
+    are exactly those of K identical frames; a false declaration fails with a one-line error."""
+    TrulyIdentical.rendered = 0
+    run_method(gl_ctx, TrulyIdentical, make_open_box(), "main", 16, 12, frames=1, warmup=1, error_frames=1)
+    timed_only, TrulyIdentical.rendered = TrulyIdentical.rendered, 0
+    result = run_method(gl_ctx, TrulyIdentical, make_open_box(), "main", 16, 12, frames=1, warmup=1, error_frames=K)
+    assert TrulyIdentical.rendered == timed_only + 2   # 2 error frames of the K
+    frame = result.indirect
+    assert np.array_equal(result.frame_stats[frame_stat_image("indirect", "mean")], frame)
+    assert not result.frame_stats[frame_stat_image("indirect", "var")].any()
+    assert not result.frame_stats[frame_stat_image("indirect", "flicker")].any()
+    with pytest.raises(RuntimeError, match="falsely_identical.*declares identical frames.*frame 1 differs"):
+        run_method(gl_ctx, FalselyIdentical, make_open_box(), "main", 16, 12, frames=1, error_frames=K)
+    from bench.protocol.registry import load_method
+    assert load_method("direct").frames_identical({}) and load_method("manylights").frames_identical(
+        {"jitter_frames": 1}) and not load_method("manylights").frames_identical({"jitter_frames": 4})
+    assert not load_method("flc").frames_identical({})

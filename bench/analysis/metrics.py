@@ -21,6 +21,11 @@ is 0.002 or 0.08 are judged alike. (An absolute epsilon of 0.01 radiance units m
 MSE / 0.01 for indirect light.) An all-zero reference falls back to the absolute epsilons.
 Spatial metrics (dssim, FLIP) see every pixel outside the mask as black in both images (what
 background is), so nothing outside the mask leaks into their windows.
+
+Cost: HDR-FLIP is most of it (flip-evaluator runs max(2, ceil(stop - start)) LDR-FLIP passes,
+~0.1 s each per core at 320x180). `compute_all` checks its inputs once and shares them across
+the metrics, and FLIP's map is computed only on the box where it can be non-zero
+(`_flip_covered`); both give exactly the values of the metric functions one by one.
 """
 from __future__ import annotations
 
@@ -98,27 +103,47 @@ def _black_outside(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- per-pixel metrics
+# The kernels (_mse, ...) take the covered pixels (x = image[mask], r = reference[mask], float64
+# Nx3): compute_all selects them once for every per-pixel metric and CIEDE2000.
+def _mse(x: np.ndarray, r: np.ndarray) -> float:
+    return float(np.mean((x - r) ** 2))
+
+
+def _relmse_epsilon(r: np.ndarray) -> float:
+    level = float(np.mean(r ** 2)) if r.size else 0.0
+    return EPS_RELMSE * level if level > 0 else EPS_RELMSE
+
+
+def _smape_epsilon(r: np.ndarray) -> float:
+    level = float(np.mean(np.abs(r))) if r.size else 0.0
+    return EPS_SMAPE * level if level > 0 else EPS_SMAPE
+
+
+def _relmse(x: np.ndarray, r: np.ndarray, e: float) -> float:
+    return float(np.mean((x - r) ** 2 / (r * r + e)))
+
+
+def _smape(x: np.ndarray, r: np.ndarray, e: float) -> float:
+    return float(np.mean(np.abs(x - r) / (np.abs(x) + np.abs(r) + e)))
+
+
 def mse(image, reference, mask=None) -> float:
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan
-    return float(np.mean((img[m] - ref[m]) ** 2))
+    return _mse(img[m], ref[m])
 
 
 def relmse_epsilon(reference, mask=None) -> float:
     """EPS_RELMSE * mean(r^2) over the covered pixels (EPS_RELMSE itself for an all-zero reference)."""
     ref = _as_rgb(reference, "reference")
-    m = _as_mask(mask, ref.shape)
-    level = float(np.mean(ref[m] ** 2)) if m.any() else 0.0
-    return EPS_RELMSE * level if level > 0 else EPS_RELMSE
+    return _relmse_epsilon(ref[_as_mask(mask, ref.shape)])
 
 
 def smape_epsilon(reference, mask=None) -> float:
     """EPS_SMAPE * mean|r| over the covered pixels (EPS_SMAPE itself for an all-zero reference)."""
     ref = _as_rgb(reference, "reference")
-    m = _as_mask(mask, ref.shape)
-    level = float(np.mean(np.abs(ref[m]))) if m.any() else 0.0
-    return EPS_SMAPE * level if level > 0 else EPS_SMAPE
+    return _smape_epsilon(ref[_as_mask(mask, ref.shape)])
 
 
 def relmse(image, reference, mask=None, eps: float | None = None) -> float:
@@ -127,8 +152,7 @@ def relmse(image, reference, mask=None, eps: float | None = None) -> float:
     if not m.any():
         return math.nan
     x, r = img[m], ref[m]
-    e = relmse_epsilon(ref, m) if eps is None else float(eps)
-    return float(np.mean((x - r) ** 2 / (r * r + e)))
+    return _relmse(x, r, _relmse_epsilon(r) if eps is None else float(eps))
 
 
 def smape(image, reference, mask=None, eps: float | None = None) -> float:
@@ -137,8 +161,7 @@ def smape(image, reference, mask=None, eps: float | None = None) -> float:
     if not m.any():
         return math.nan
     x, r = img[m], ref[m]
-    e = smape_epsilon(ref, m) if eps is None else float(eps)
-    return float(np.mean(np.abs(x - r) / (np.abs(x) + np.abs(r) + e)))
+    return _smape(x, r, _smape_epsilon(r) if eps is None else float(eps))
 
 
 # ---------------------------------------------------------------------------- display transforms
@@ -168,12 +191,24 @@ def _check_scale(scale) -> float:
 
 def _srgb_encode(linear: np.ndarray) -> np.ndarray:
     import colour
-    return np.asarray(colour.cctf_encoding(linear, function="sRGB"), dtype=np.float64)
+    # the function colour.cctf_encoding(linear, function="sRGB") dispatches to, without the dispatch
+    return np.asarray(colour.CCTF_ENCODINGS["sRGB"](linear), dtype=np.float64)
+
+
+def _dssim(img_b: np.ndarray, ref_b: np.ndarray, m: np.ndarray, s: float) -> float:
+    """dssim of images already black outside the (non-empty) mask `m`, at exposure `s`."""
+    from skimage.metrics import structural_similarity
+    h, w = m.shape
+    if min(h, w) < SSIM_WINDOW:
+        raise ValueError(f"dssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {w}x{h}")
+    y_img = _srgb_encode(tonemap(img_b, s) @ LUMA)
+    y_ref = _srgb_encode(tonemap(ref_b, s) @ LUMA)
+    _, ssim_map = structural_similarity(y_ref, y_img, win_size=SSIM_WINDOW, data_range=1.0, full=True)
+    return float(1.0 - np.mean(ssim_map[m]))
 
 
 def dssim(image, reference, mask=None, scale: float | None = None) -> float:
     """1 - SSIM of sRGB-encoded luminance of the tone-mapped images, averaged over the mask."""
-    from skimage.metrics import structural_similarity
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan
@@ -181,11 +216,7 @@ def dssim(image, reference, mask=None, scale: float | None = None) -> float:
     if min(h, w) < SSIM_WINDOW:
         raise ValueError(f"dssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {w}x{h}")
     s = tonemap_scale(ref, m) if scale is None else _check_scale(scale)
-    img, ref = _black_outside(img, m), _black_outside(ref, m)
-    y_img = _srgb_encode(tonemap(img, s) @ LUMA)
-    y_ref = _srgb_encode(tonemap(ref, s) @ LUMA)
-    _, ssim_map = structural_similarity(y_ref, y_img, win_size=SSIM_WINDOW, data_range=1.0, full=True)
-    return float(1.0 - np.mean(ssim_map[m]))
+    return _dssim(_black_outside(img, m), _black_outside(ref, m), m, s)
 
 
 def _lab(linear_display: np.ndarray) -> np.ndarray:
@@ -195,19 +226,24 @@ def _lab(linear_display: np.ndarray) -> np.ndarray:
     return colour.XYZ_to_Lab(xyz, srgb.whitepoint)
 
 
+def _ciede2000(x: np.ndarray, r: np.ndarray, s: float) -> float:
+    """Mean CIEDE2000 of the covered pixels x (image) and r (reference), Nx3, at exposure `s`."""
+    from colour.difference import delta_E_CIE2000  # what colour.delta_E(method="CIE 2000") calls
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # colour's domain-range notices are not about our data
+        lab_img = _lab(tonemap(x, s))
+        lab_ref = _lab(tonemap(r, s))
+        de = delta_E_CIE2000(lab_ref, lab_img)
+    return float(np.mean(de))
+
+
 def ciede2000(image, reference, mask=None, scale: float | None = None) -> float:
     """Mean CIEDE2000 over the mask between the tone-mapped images (CIE Lab, D65)."""
-    import colour
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan
     s = tonemap_scale(ref, m) if scale is None else _check_scale(scale)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")  # colour's domain-range notices are not about our data
-        lab_img = _lab(tonemap(img[m], s))
-        lab_ref = _lab(tonemap(ref[m], s))
-        de = colour.delta_E(lab_ref, lab_img, method="CIE 2000")
-    return float(np.mean(de))
+    return _ciede2000(img[m], ref[m], s)
 
 
 # ---------------------------------------------------------------------------- HDR-FLIP
@@ -219,6 +255,16 @@ def _flip_x_max() -> float:
     return (-qb + math.sqrt(qb * qb - 4.0 * qa * qc)) / (2.0 * qa)
 
 
+def _flip_reach(ppd: float) -> int:
+    """How far (pixels) FLIP's filters read around a pixel: the larger of its spatial-filter radius
+    ceil(3 sqrt(b / (2 pi^2)) ppd), b = 0.04 its widest Gaussian, and its feature-filter radius
+    ceil(3 * 0.5 * 0.082 ppd); + 1 for FLIP computing them in float32."""
+    spatial = math.ceil(3.0 * math.sqrt(0.04 / (2.0 * math.pi ** 2)) * ppd)
+    feature = math.ceil(3.0 * 0.5 * 0.082 * ppd)
+    return max(spatial, feature) + 1
+
+
+FLIP_REACH = _flip_reach(FLIP_PPD)  # 11 pixels at 67 ppd
 _MIN_EXPOSURE_SPAN = 1e-3  # FLIP aborts the process on start >= stop, so a uniform reference gets this span
 
 
@@ -258,19 +304,59 @@ def weighted_median(values: np.ndarray) -> float:
     return float(v[min(idx, v.size - 1)])
 
 
-def flip_error_map(image, reference, mask=None, exposure: tuple | None = None) -> np.ndarray:
-    """The HxW HDR-FLIP error map (values in [0, 1]); negative radiance is clamped to 0."""
+def _flip_map(ref32: np.ndarray, img32: np.ndarray, start: float, stop: float) -> np.ndarray:
+    """flip-evaluator's HDR-FLIP map (float64) of two HxWx3 float32 images, exposures start..stop."""
     import flip_evaluator
-    img, ref, m = _inputs(image, reference, mask)
-    start, stop = _check_exposure(flip_exposure_range(ref, m) if exposure is None else exposure)
-    img, ref = _black_outside(img, m), _black_outside(ref, m)
     params = {"ppd": FLIP_PPD, "startExposure": start, "stopExposure": stop,
               "numExposures": max(2, math.ceil(stop - start)), "tonemapper": FLIP_TONEMAPPER}
-    ref32 = np.ascontiguousarray(np.clip(ref, 0.0, None), dtype=np.float32)
-    img32 = np.ascontiguousarray(np.clip(img, 0.0, None), dtype=np.float32)
-    err, _, _ = flip_evaluator.evaluate(ref32, img32, "HDR", applyMagma=False, computeMeanError=False,
-                                        parameters=params)
-    return np.asarray(err, dtype=np.float64).reshape(m.shape)
+    err, _, _ = flip_evaluator.evaluate(np.ascontiguousarray(ref32), np.ascontiguousarray(img32), "HDR",
+                                        applyMagma=False, computeMeanError=False, parameters=params)
+    return np.asarray(err, dtype=np.float64).reshape(ref32.shape[:2])
+
+
+def _flip_inputs(img_b: np.ndarray, ref_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """What FLIP is given: float32, negative radiance clamped to 0 (images black outside the mask)."""
+    return (np.ascontiguousarray(np.clip(ref_b, 0.0, None), dtype=np.float32),
+            np.ascontiguousarray(np.clip(img_b, 0.0, None), dtype=np.float32))
+
+
+def _box(rows: np.ndarray, cols: np.ndarray):
+    """[y0, y1, x0, x1) of the True entries of two 1-D any-masks, or None if there are none."""
+    ys, xs = np.flatnonzero(rows), np.flatnonzero(cols)
+    return None if ys.size == 0 else (int(ys[0]), int(ys[-1]) + 1, int(xs[0]), int(xs[-1]) + 1)
+
+
+def _flip_covered(img_b: np.ndarray, ref_b: np.ndarray, m: np.ndarray, start: float, stop: float) -> np.ndarray:
+    """HDR-FLIP's error at the covered pixels (the full map's values at `m`), computed on a crop.
+
+    FLIP's error at a pixel depends only on the two images within FLIP_REACH pixels of it (separable
+    filters clamped at the image edge, then per-pixel arithmetic and the maximum over exposures),
+    and is exactly 0 where they are equal throughout that window (colour and feature differences
+    are 0, and 0^p = 0). So the map is computed only on the box of covered pixels within
+    FLIP_REACH of a pixel where the images differ, widened by FLIP_REACH (up to the image edge):
+    every pixel of that box sees the same window, hence the same value, as in the full map, and
+    the covered pixels outside it are 0, as there. An image equal to its reference costs nothing.
+    """
+    ref32, img32 = _flip_inputs(img_b, ref_b)
+    out = np.zeros(m.shape, dtype=np.float64)
+    differ = np.any(img32 != ref32, axis=2)
+    d, c = _box(differ.any(axis=1), differ.any(axis=0)), _box(m.any(axis=1), m.any(axis=0))
+    h, w, r = m.shape[0], m.shape[1], FLIP_REACH
+    if d is not None and c is not None:
+        y0, y1 = max(c[0], d[0] - r), min(c[1], d[1] + r)    # covered pixels that may be non-zero
+        x0, x1 = max(c[2], d[2] - r), min(c[3], d[3] + r)
+        if y0 < y1 and x0 < x1:
+            y0, y1, x0, x1 = max(0, y0 - r), min(h, y1 + r), max(0, x0 - r), min(w, x1 + r)
+            out[y0:y1, x0:x1] = _flip_map(ref32[y0:y1, x0:x1], img32[y0:y1, x0:x1], start, stop)
+    return out[m]
+
+
+def flip_error_map(image, reference, mask=None, exposure: tuple | None = None) -> np.ndarray:
+    """The HxW HDR-FLIP error map (values in [0, 1]); negative radiance is clamped to 0."""
+    img, ref, m = _inputs(image, reference, mask)
+    start, stop = _check_exposure(flip_exposure_range(ref, m) if exposure is None else exposure)
+    ref32, img32 = _flip_inputs(_black_outside(img, m), _black_outside(ref, m))
+    return _flip_map(ref32, img32, start, stop)
 
 
 def flip(image, reference, mask=None, exposure: tuple | None = None) -> tuple[float, float]:
@@ -278,7 +364,8 @@ def flip(image, reference, mask=None, exposure: tuple | None = None) -> tuple[fl
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan, math.nan
-    err = flip_error_map(img, ref, m, exposure)[m]
+    start, stop = _check_exposure(flip_exposure_range(ref, m) if exposure is None else exposure)
+    err = _flip_covered(_black_outside(img, m), _black_outside(ref, m), m, start, stop)
     return float(err.mean()), weighted_median(err)
 
 
@@ -286,13 +373,20 @@ def flip(image, reference, mask=None, exposure: tuple | None = None) -> tuple[fl
 def compute_all(image, reference, mask=None, flip_exposure: tuple | None = None,
                 tonemap_scale_value: float | None = None) -> dict:
     """Every metric of METRICS, keyed by name. `flip_exposure` and `tonemap_scale_value` default
-    to the reference's own (`flip_exposure_range`, `tonemap_scale`)."""
+    to the reference's own (`flip_exposure_range`, `tonemap_scale`).
+
+    The same values as the metric functions one by one, with the inputs checked once and shared:
+    the covered pixels (per-pixel metrics, CIEDE2000) and the images black outside the mask
+    (dssim, FLIP)."""
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return {name: math.nan for name in METRICS}
     s = tonemap_scale(ref, m) if tonemap_scale_value is None else _check_scale(tonemap_scale_value)
-    f_mean, f_median = flip(img, ref, m, flip_exposure)
-    out = {"mse": mse(img, ref, m), "relmse": relmse(img, ref, m), "smape": smape(img, ref, m),
-           "dssim": dssim(img, ref, m, scale=s), "flip_mean": f_mean, "flip_median": f_median,
-           "ciede2000": ciede2000(img, ref, m, scale=s)}
+    start, stop = _check_exposure(flip_exposure_range(ref, m) if flip_exposure is None else flip_exposure)
+    x, r = img[m], ref[m]
+    img_b, ref_b = _black_outside(img, m), _black_outside(ref, m)
+    err = _flip_covered(img_b, ref_b, m, start, stop)
+    out = {"mse": _mse(x, r), "relmse": _relmse(x, r, _relmse_epsilon(r)), "smape": _smape(x, r, _smape_epsilon(r)),
+           "dssim": _dssim(img_b, ref_b, m, s), "flip_mean": float(err.mean()), "flip_median": weighted_median(err),
+           "ciede2000": _ciede2000(x, r, s)}
     return {name: out[name] for name in METRICS}

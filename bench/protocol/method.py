@@ -133,6 +133,14 @@ class MethodBase:
     # them gets passes of its own, rendered in each of its frames.
     reuses_shared_passes: ClassVar[bool] = True
 
+    @classmethod
+    def frames_identical(cls, params: dict) -> bool:
+        """Whether every frame of a view gives the same image at these (resolved) parameters: no
+        per-frame random stream, no temporal state. The error frames then render two frames, check
+        them bit for bit (a false declaration fails the row) and count the rest as copies
+        (bench.run.harness). False unless a method says so."""
+        return False
+
     def prepare(self, gpu, scene, facts, params: dict, view) -> None:
         self.params = params
 

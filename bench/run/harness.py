@@ -29,7 +29,10 @@ frame 0 is the row's own image and the K frames depend only on the seed. Per ima
 (`indirect`, `combined`) `FrameStatistics` keeps, per pixel, the mean, the unbiased variance
 over the K frames and the flicker D = mean over consecutive pairs of (f_{k+1} - f_k)^2; the row
 gets them as images (`<component>_frames_{mean,var,flicker}`, bench.protocol.vocabulary) and
-records K in `extra.error_frames`. Nothing timed changes: frame_ms, stage_ms and the row's
+records K in `extra.error_frames`. A method that declares its frames identical at the row's
+parameters (`frames_identical`: direct, manylights' centroid sum) renders two of the K, compared
+bit for bit (a false declaration fails the row), and counts the others as copies of them: the
+statistics are exactly those of K identical frames, for 2 frames' cost. Nothing timed changes: frame_ms, stage_ms and the row's
 images are those of the timed instance; the error pass's own wall time (prepare included) is
 `error_frames_ms`.
 """
@@ -372,7 +375,11 @@ def _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, pass
     check_gl(ctx, f"method '{method_cls.name}' prepare (error frames)")
     stats = {c: FrameStatistics() for c in FRAME_STAT_COMPONENTS}
     prof.enabled = False
-    for index in range(count):
+    # a method that declares identical frames renders two, checked bit for bit; the others are copies
+    identical = bool(getattr(method_cls, "frames_identical", lambda p: False)(params))
+    rendered = min(count, 2) if identical else count
+    first = None
+    for index in range(rendered):
         prof.begin_frame()
         frame = Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=index, seed=seed)
         if lent:
@@ -386,6 +393,15 @@ def _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, pass
         if not allow_nonfinite and not (np.all(np.isfinite(direct)) and np.all(np.isfinite(indirect))):
             raise FloatingPointError(f"method '{method_cls.name}' produced non-finite pixels in error frame {index}")
         images = {"indirect": indirect, "combined": direct + indirect}   # as RenderResult.combined
+        if identical:
+            if first is None:
+                first = images
+            elif not all(np.array_equal(first[c], images[c]) for c in FRAME_STAT_COMPONENTS):
+                raise RuntimeError(f"method '{method_cls.name}' declares identical frames (frames_identical) at these "
+                                   f"parameters, but its frame {index} differs from frame 0")
         for component, acc in stats.items():
             acc.add(images[component])
+    for _ in range(count - rendered):
+        for component, acc in stats.items():
+            acc.add(first[component])
     return {frame_stat_image(c, name): img for c, acc in stats.items() for name, img in acc.images().items()}

@@ -29,5 +29,9 @@ class DirectMethod(MethodBase):
     params = {}
     needs = frozenset({"direct", "shadow_map"})
 
+    @classmethod
+    def frames_identical(cls, params: dict) -> bool:
+        return True   # the shared direct pass: no random stream, no state
+
     def render(self, frame, prof) -> FrameOutput:
         return FrameOutput(direct=frame.passes.direct.radiance, indirect=None)

@@ -104,6 +104,10 @@ class ManyLights(MethodBase):
                                           "pixels x triangles", 1, 100_000_000),
     }
 
+    @classmethod
+    def frames_identical(cls, params: dict) -> bool:
+        return params["jitter_frames"] == 1   # centroid VPLs: no random stream; jittered ones draw anew each frame
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         if gpu.triangle_count > params["max_triangles"]:
