@@ -75,3 +75,21 @@ def make_grid_box(n=6, light_position=(0.2, 1.2, 0.1), intensity=2.0):
     colours = ([0.8, 0.8, 0.8], [0.2, 0.8, 0.2], [0.8, 0.2, 0.2])
     return scene_from_parts("grid_box", parts, colours, [PointLight(light_position, [intensity] * 3)],
                             {"main": Camera([0, 1, 3.5], [0, 0.8, 0], fov_y_deg=50)})
+
+
+def cli_run_config(monkeypatch, argv: list):
+    """The RunConfig the CLI builds for `argv` (run or sweep), caught before anything renders."""
+    import bench.cli as cli
+    import bench.run.serial
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def fake_run(cfg, log=None):
+        seen.append(cfg)
+        raise Stop
+    monkeypatch.setattr(bench.run.serial, "run", fake_run)
+    with pytest.raises(Stop):
+        cli.main(argv)
+    return seen[0]

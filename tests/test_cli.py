@@ -5,6 +5,7 @@ import sys
 import pytest
 
 from bench.cli import _param_sets, main
+from tests.conftest import cli_run_config
 
 
 def test_list_methods(capsys):
@@ -104,41 +105,16 @@ def test_reference_build_without_mitsuba_is_one_line(capsys, monkeypatch):
 def test_reference_cap_of_run_and_quick(monkeypatch, extra, expected):
     """`run` caps references at 1024 spp, `run --quick` (a first report in minutes) at 256,
     unless --reference-spp says otherwise."""
-    import bench.cli as cli
-    seen = {}
-
-    class Stop(Exception):
-        pass
-
-    def fake_run(cfg, log=None):
-        seen["cap"] = cfg.reference_spp_cap
-        raise Stop
-    import bench.run.serial
-    monkeypatch.setattr(bench.run.serial, "run", fake_run)
-    with pytest.raises(Stop):
-        cli.main(["run", "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
-    assert seen["cap"] == expected
+    cfg = cli_run_config(monkeypatch, ["run", "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
+    assert cfg.reference_spp_cap == expected
 
 
 @pytest.mark.parametrize("command", ["run", "sweep"])
 def test_shadow_resolution_reaches_the_run_config(monkeypatch, command):
     """--shadow-resolution sets the shared shadow maps' tile side of `run` and `sweep`; unset, the
     runner sizes them from the image (RunConfig.shadow_resolution None)."""
-    import bench.cli as cli
-    import bench.run.serial
-    seen = []
-
-    class Stop(Exception):
-        pass
-
-    def fake_run(cfg, log=None):
-        seen.append(cfg.shadow_resolution)
-        raise Stop
-    monkeypatch.setattr(bench.run.serial, "run", fake_run)
     base = [command, "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"]
-    for extra in (["--shadow-resolution", "2048"], []):
-        with pytest.raises(Stop):
-            cli.main(base + extra)
+    seen = [cli_run_config(monkeypatch, base + extra).shadow_resolution for extra in (["--shadow-resolution", "2048"], [])]
     assert seen == [2048, None]
 
 

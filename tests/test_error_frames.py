@@ -23,7 +23,7 @@ from bench.protocol.vocabulary import (DECOMPOSITION_COMPONENTS, DECOMPOSITION_M
                                        error_metric_names, frame_stat_image)
 from bench.run.harness import FrameStatistics, run_method
 from bench.run.serial import RunConfig, run
-from tests.conftest import make_open_box
+from tests.conftest import cli_run_config, make_open_box
 
 W, H, K = 80, 60, 8   # 4,800 pixels: intervals of about 1.5% of the variance
 
@@ -326,19 +326,8 @@ def test_columns_against_a_real_reference(tmp_path):
     ("run", ["--error-frames", "1"], 1), ("sweep", [], 8), ("sweep", ["--error-frames", "2"], 2),
 ])
 def test_error_frames_option_reaches_the_run_config(monkeypatch, command, extra, expected):
-    import bench.cli as cli
-    import bench.run.serial
-    seen = []
-
-    class Stop(Exception):
-        pass
-
-    def fake_run(cfg, log=print):
-        seen.append(cfg.error_frames)
-        raise Stop
-    monkeypatch.setattr(bench.run.serial, "run", fake_run)
-    with pytest.raises(Stop):
-        cli.main([command, "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
+    cfg = cli_run_config(monkeypatch, [command, "--scenes", "cornell_spot", "--methods", "direct", "--no-progress"] + extra)
+    seen = [cfg.error_frames]
     assert seen == [expected]
 
 

@@ -4,6 +4,7 @@ exposure change the canvas, no console errors; a screenshot goes to test-output/
 from __future__ import annotations
 
 import json
+from contextlib import contextmanager
 import re
 import shutil
 from pathlib import Path
@@ -156,12 +157,13 @@ def _set_range(page, selector, value):
                           str(value))
 
 
-@pytest.mark.browser
-def test_report_in_browser(run_with_refs):
+@contextmanager
+def report_page(index):
+    """(page, console errors) of the report at `index`, opened in headless chromium once its
+    script says it is ready; skips when chromium is not installed."""
     if not CHROMIUM.is_file():
         pytest.skip("chromium not installed (/usr/bin/chromium)")
     from playwright.sync_api import sync_playwright
-    index = build_report(run_with_refs)
     errors = []
     with sync_playwright() as p:
         browser = p.chromium.launch(executable_path=str(CHROMIUM), args=[
@@ -173,68 +175,75 @@ def test_report_in_browser(run_with_refs):
             page.on("pageerror", lambda e: errors.append(str(e)))
             page.goto(index.as_uri())
             page.wait_for_function("window.GIBENCH && window.GIBENCH.ready === true", timeout=20000)
-            assert page.evaluate("GIBENCH.viewers.length") == 1
-
-            before = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            assert before["w"] >= 48 and before["lit"] > 0.05 * before["w"] * before["h"]  # not blank
-            thumbs = page.eval_on_selector_all("figure.thumb canvas", "cs => cs.length")
-            assert thumbs == 2
-
-            # every plot image loaded
-            sizes = page.eval_on_selector_all("img.plot", "imgs => imgs.map(i => i.complete ? i.naturalWidth : 0)")
-            assert len(sizes) >= 2 and all(s > 0 for s in sizes)
-
-            # the wipe slider changes the displayed image (A = reference, B = a method)
-            page.select_option(".viewer select.sel-b", label="direct")
-            _set_range(page, ".viewer input.wipe", 1000)
-            only_a = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            _set_range(page, ".viewer input.wipe", 0)
-            only_b = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            assert only_a["hash"] != only_b["hash"] and only_a["sum"] != only_b["sum"]
-
-            # exposure: one stop up brightens
-            ev = float(page.eval_on_selector(".viewer input.exposure", "e => e.value"))
-            _set_range(page, ".viewer input.exposure", ev + 1)
-            brighter = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            assert brighter["sum"] > only_b["sum"]
-
-            # wheel zooms about the cursor, drag pans, double-click resets
-            box = page.locator("canvas.view-canvas").bounding_box()
-            cx, cy = box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.4
-            page.mouse.move(cx, cy)
-            page.mouse.wheel(0, -400)
-            page.wait_for_function("GIBENCH.viewers[0].zoom > 1")
-            zoomed = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            assert zoomed["hash"] != brighter["hash"]
-            page.mouse.down()
-            page.mouse.move(cx + 60, cy + 40, steps=4)
-            page.mouse.up()
-            panned = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            assert panned["hash"] != zoomed["hash"]
-            page.dblclick("canvas.view-canvas")
-            assert page.evaluate(CANVAS_STATS, "canvas.view-canvas")["hash"] == brighter["hash"]
-
-            # the error map view of the indirect component
-            page.click(".viewer button[data-component='indirect']")
-            page.select_option(".viewer select.sel-mode", "abs")
-            _set_range(page, ".viewer input.wipe", 500)
-            err = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
-            assert err["hash"] != brighter["hash"]
-            assert page.eval_on_selector(".legend", "e => getComputedStyle(e).visibility") == "visible"
-
-            # the metric select switches the overview table
-            page.select_option("select.metric-select", "mse.combined")
-            assert page.eval_on_selector("[data-metric='mse.combined']", "e => !e.hidden")
-            assert page.eval_on_selector("[data-metric='relmse.indirect']", "e => e.hidden")
-
-            # back to the combined image for the screenshot
-            page.click(".viewer button[data-component='combined']")
-            page.select_option(".viewer select.sel-mode", "image")
-            page.select_option(".viewer select.sel-b", label="manylights")
-            SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
-            page.screenshot(path=str(SCREENSHOT), full_page=True)
+            yield page, errors
         finally:
             browser.close()
+
+
+@pytest.mark.browser
+def test_report_in_browser(run_with_refs):
+    index = build_report(run_with_refs)
+    with report_page(index) as (page, errors):
+        assert page.evaluate("GIBENCH.viewers.length") == 1
+
+        before = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        assert before["w"] >= 48 and before["lit"] > 0.05 * before["w"] * before["h"]  # not blank
+        thumbs = page.eval_on_selector_all("figure.thumb canvas", "cs => cs.length")
+        assert thumbs == 2
+
+        # every plot image loaded
+        sizes = page.eval_on_selector_all("img.plot", "imgs => imgs.map(i => i.complete ? i.naturalWidth : 0)")
+        assert len(sizes) >= 2 and all(s > 0 for s in sizes)
+
+        # the wipe slider changes the displayed image (A = reference, B = a method)
+        page.select_option(".viewer select.sel-b", label="direct")
+        _set_range(page, ".viewer input.wipe", 1000)
+        only_a = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        _set_range(page, ".viewer input.wipe", 0)
+        only_b = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        assert only_a["hash"] != only_b["hash"] and only_a["sum"] != only_b["sum"]
+
+        # exposure: one stop up brightens
+        ev = float(page.eval_on_selector(".viewer input.exposure", "e => e.value"))
+        _set_range(page, ".viewer input.exposure", ev + 1)
+        brighter = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        assert brighter["sum"] > only_b["sum"]
+
+        # wheel zooms about the cursor, drag pans, double-click resets
+        box = page.locator("canvas.view-canvas").bounding_box()
+        cx, cy = box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.4
+        page.mouse.move(cx, cy)
+        page.mouse.wheel(0, -400)
+        page.wait_for_function("GIBENCH.viewers[0].zoom > 1")
+        zoomed = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        assert zoomed["hash"] != brighter["hash"]
+        page.mouse.down()
+        page.mouse.move(cx + 60, cy + 40, steps=4)
+        page.mouse.up()
+        panned = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        assert panned["hash"] != zoomed["hash"]
+        page.dblclick("canvas.view-canvas")
+        assert page.evaluate(CANVAS_STATS, "canvas.view-canvas")["hash"] == brighter["hash"]
+
+        # the error map view of the indirect component
+        page.click(".viewer button[data-component='indirect']")
+        page.select_option(".viewer select.sel-mode", "abs")
+        _set_range(page, ".viewer input.wipe", 500)
+        err = page.evaluate(CANVAS_STATS, "canvas.view-canvas")
+        assert err["hash"] != brighter["hash"]
+        assert page.eval_on_selector(".legend", "e => getComputedStyle(e).visibility") == "visible"
+
+        # the metric select switches the overview table
+        page.select_option("select.metric-select", "mse.combined")
+        assert page.eval_on_selector("[data-metric='mse.combined']", "e => !e.hidden")
+        assert page.eval_on_selector("[data-metric='relmse.indirect']", "e => e.hidden")
+
+        # back to the combined image for the screenshot
+        page.click(".viewer button[data-component='combined']")
+        page.select_option(".viewer select.sel-mode", "image")
+        page.select_option(".viewer select.sel-b", label="manylights")
+        SCREENSHOT.parent.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(SCREENSHOT), full_page=True)
     assert not errors, errors
     assert SCREENSHOT.stat().st_size > 10000
 
@@ -359,45 +368,30 @@ def test_bias_variance_split_without_some_columns():
 @pytest.mark.browser
 def test_error_over_frames_in_browser(run_with_frames):
     """The bias/variance split and both curves of each method, as a browser shows them."""
-    if not CHROMIUM.is_file():
-        pytest.skip("chromium not installed (/usr/bin/chromium)")
-    from playwright.sync_api import sync_playwright
     index = build_report(run_with_frames)
     plots_dir = run_with_frames / "report" / "plots"
-    errors = []
-    with sync_playwright() as p:
-        browser = p.chromium.launch(executable_path=str(CHROMIUM), args=[
-            "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking",
-            "--disable-component-update", "--disable-sync"])
-        try:
-            page = browser.new_page(viewport={"width": 1280, "height": 1500})
-            page.on("console", lambda m: errors.append(m.text) if m.type == "error" else None)
-            page.on("pageerror", lambda e: errors.append(str(e)))
-            page.goto(index.as_uri())
-            page.wait_for_function("window.GIBENCH && window.GIBENCH.ready === true", timeout=20000)
-            # the split: its figure loaded and visible, its table with one row per method
-            bars = page.locator("img.plot.bias-variance")
-            assert bars.count() == 1 and bars.is_visible()
-            assert bars.evaluate("i => i.complete && i.naturalWidth > 0")
-            methods = page.eval_on_selector_all("table.decomposition tr[data-method]", "rs => rs.map(r => r.dataset.method)")
-            assert sorted(methods) == ["direct", "manylights"]
-            assert page.locator("#decomposition").is_visible()
-            # the flicker column of the shown overview table
-            assert page.locator("#overview-tables div:not([hidden]) th.flicker").first.is_visible()
-            # both curves drawn, per method and panel, and the split's bars, in the figures the page shows
-            drawn = "es => es.filter(e => e.getBBox().width > 0).map(e => e.id).sort()"
-            page.goto((plots_dir / "time_error_0.svg").as_uri())
-            for comp in ("indirect", "combined"):
-                for curve in ("single", "accumulated"):
-                    assert page.eval_on_selector_all(f"[id^='{curve}-{comp}-']", drawn) == [
-                        f"{curve}-{comp}-direct", f"{curve}-{comp}-manylights"]
-            page.goto((plots_dir / "bias_variance_0.svg").as_uri())
-            assert page.eval_on_selector_all("[id^='bias2-']", drawn) == ["bias2-direct", "bias2-manylights"]
-            # direct is deterministic: its variance bar is empty
-            assert page.eval_on_selector_all("[id^='variance-']", drawn) == ["variance-manylights"]
-            assert page.eval_on_selector_all("[id^='variance-']", "es => es.length") == 2
-        finally:
-            browser.close()
+    with report_page(index) as (page, errors):
+        # the split: its figure loaded and visible, its table with one row per method
+        bars = page.locator("img.plot.bias-variance")
+        assert bars.count() == 1 and bars.is_visible()
+        assert bars.evaluate("i => i.complete && i.naturalWidth > 0")
+        methods = page.eval_on_selector_all("table.decomposition tr[data-method]", "rs => rs.map(r => r.dataset.method)")
+        assert sorted(methods) == ["direct", "manylights"]
+        assert page.locator("#decomposition").is_visible()
+        # the flicker column of the shown overview table
+        assert page.locator("#overview-tables div:not([hidden]) th.flicker").first.is_visible()
+        # both curves drawn, per method and panel, and the split's bars, in the figures the page shows
+        drawn = "es => es.filter(e => e.getBBox().width > 0).map(e => e.id).sort()"
+        page.goto((plots_dir / "time_error_0.svg").as_uri())
+        for comp in ("indirect", "combined"):
+            for curve in ("single", "accumulated"):
+                assert page.eval_on_selector_all(f"[id^='{curve}-{comp}-']", drawn) == [
+                    f"{curve}-{comp}-direct", f"{curve}-{comp}-manylights"]
+        page.goto((plots_dir / "bias_variance_0.svg").as_uri())
+        assert page.eval_on_selector_all("[id^='bias2-']", drawn) == ["bias2-direct", "bias2-manylights"]
+        # direct is deterministic: its variance bar is empty
+        assert page.eval_on_selector_all("[id^='variance-']", drawn) == ["variance-manylights"]
+        assert page.eval_on_selector_all("[id^='variance-']", "es => es.length") == 2
     assert not errors, errors
 
 
