@@ -165,6 +165,20 @@ def get_reference(scene: Scene, view: str, width: int, height: int, component: s
 
 
 # ---------------------------------------------------------------------------- bulk precompute
+def stored_reference(scene: Scene, view: str, width: int, height: int, component: str, *,
+                     pixel_sampling: str = "center", seed: int = 0, max_layers: int = DEFAULT_MAX_LAYERS,
+                     light_sampling: bool = True, cache_dir=None) -> dict:
+    """What the cache already holds of a reference, without rendering or verifying it (a cost
+    plan's question): {"spp": samples stored (0: none), "seconds": the time they took, "noise_floor_mse"}."""
+    mi = load_mitsuba()
+    settings = {"pixel_sampling": pixel_sampling, "seed": int(seed), "max_layers": int(max_layers),
+                "light_sampling": bool(light_sampling)}
+    key = cache.cache_key(key_payload(scene, view, width, height, component, settings, mi.__version__, mi.variant()))
+    meta = cache.peek_meta(key, None if cache_dir is None else Path(cache_dir)) or {}
+    return {"spp": int(meta.get("spp", 0) or 0), "seconds": float(meta.get("seconds", 0.0) or 0.0),
+            "noise_floor_mse": meta.get("noise_floor_mse")}
+
+
 def _build_one(job):
     scene, view, width, height, component, spp_cap, threads = job
     try:

@@ -64,6 +64,15 @@ def _evict(d: Path, problem: str) -> None:
           file=sys.stderr)
 
 
+def peek_meta(key: str, root: Path | None = None) -> dict | None:
+    """An entry's meta.json as stored (unverified: for plans, never for images), None without one."""
+    try:
+        meta = json.loads((entry_dir(key, root) / "meta.json").read_bytes())
+    except (OSError, ValueError):
+        return None
+    return meta if isinstance(meta, dict) else None
+
+
 def load(key: str, root: Path | None = None):
     """(Moments, meta) of a stored entry whose checksums hold, or None (a bad entry is evicted)."""
     d = entry_dir(key, root)

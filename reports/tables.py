@@ -244,6 +244,13 @@ def run_info(manifest: dict, run_dir: Path) -> dict:
     general = {"run folder": run_dir.resolve(), "created": manifest.get("created"),
                "git commit": manifest.get("git_commit"), "results schema": manifest.get("schema_version")}
     phases = {k: f"{float(v):.1f} s" for k, v in (manifest.get("phases_s") or {}).items()}
+    predicted = manifest.get("phases_predicted_vs_actual") or {}
+    if predicted:   # the cost plan made before the run (bench.run.budget) beside what it took
+        phases = {k: f"{v['actual_s']:.1f} s (predicted {v['predicted_s']:.1f} s)" for k, v in predicted.items()}
+    plan = manifest.get("plan") or {}
+    if plan.get("budget_s"):
+        rows = ", ".join(f"{n} {status}" for status, n in sorted((plan.get("rows") or {}).items()))
+        phases["budget"] = f"{float(plan['budget_s']):.0f} s ({rows})"
     if phases and manifest.get("harness_overhead") is not None:
         phases["harness overhead"] = f"{100 * float(manifest['harness_overhead']):.1f}% of the rendered rows' time"
     return {"general": list(general.items()), "phases": list(phases.items()),

@@ -86,7 +86,7 @@ def cli_run_config(monkeypatch, argv: list):
     class Stop(Exception):
         pass
 
-    def fake_run(cfg, log=None):
+    def fake_run(cfg, log=None, **kw):
         seen.append(cfg)
         raise Stop
     monkeypatch.setattr(bench.run.serial, "run", fake_run)

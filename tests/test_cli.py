@@ -217,7 +217,7 @@ def test_valid_edges_reach_the_run_config(monkeypatch, no_work):
     import bench.run.serial
     seen = {}
 
-    def fake_run(cfg, log=None):
+    def fake_run(cfg, log=None, **kw):
         seen.update(cfg.__dict__)
         raise WorkStarted
     monkeypatch.setattr(bench.run.serial, "run", fake_run)

@@ -118,8 +118,8 @@ def test_vanished_out_is_an_incomplete_run(tmp_path, capsys, monkeypatch):
     from bench.run import serial
     real = serial.Runner.record
 
-    def record_then_vanish(self, row):
-        real(self, row)
+    def record_then_vanish(self, row, **kw):
+        real(self, row, **kw)
         if len(self.rows) == 1:
             shutil.rmtree(self.run_dir)
 

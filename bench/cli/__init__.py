@@ -1,4 +1,4 @@
-"""`gibench` command line: run, sweep, stress, list, report, gate, reference, manuals (one module each).
+"""`gibench` command line: run, sweep, stress, list, report, gate, reference, manuals, cost-model (one module each).
 
 Exit codes: 0 success; 1 nothing useful produced (every row of a run failed), a run that could
 not finish (its --out vanished), a gate regression, a stress failure, an out-of-date manual, or
@@ -12,11 +12,11 @@ from __future__ import annotations
 
 import sys
 
-from bench.cli import gate, listing, manuals, reference, report, run, stress, sweep
+from bench.cli import cost_model, gate, listing, manuals, reference, report, run, stress, sweep
 from bench.cli.options import OneLineParser
 from bench.cli.options import param_sets as _param_sets  # noqa: F401  (the --param grammar, tested as such)
 
-COMMANDS = (run, sweep, stress, listing, report, gate, reference, manuals)
+COMMANDS = (run, sweep, stress, listing, report, gate, reference, manuals, cost_model)
 
 
 def main(argv=None) -> int:

@@ -25,9 +25,10 @@ from reference.api import MIN_SPP
 # paper's kind of comparison (sponza, sibenik, conference: real interiors of 66k-331k triangles).
 DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside", "rooms", "lit_wall_corner",
                   "cornell_box", "sponza", "sibenik", "conference")
-# `--quick`: a first useful report in minutes: two procedural scenes and one real one, the fast and
-# the default rung of each ladder, a short timing budget
-QUICK_SCENES = ("cornell_spot", "rooms", "sponza")
+# `--quick`: a first useful report in minutes: the default corpus under a time budget (the plan keeps
+# every method's defaults first, then the ladders' ends, then their middles: bench.run.budget), a
+# short timing budget, fewer reference samples and error frames
+QUICK_BUDGET_S = 300.0
 REFERENCE_SPP = 1024        # reference spp cap of `run` and `sweep`
 QUICK_REFERENCE_SPP = 256   # --quick: a first report; the reference floor shows as wider intervals
 ERROR_FRAMES = 8            # untimed frames per row for bias, variance and flicker (RunConfig.error_frames)
@@ -47,6 +48,7 @@ REFERENCE_SPP_RANGE = (MIN_SPP, 1 << 20)   # a variance needs two samples
 TIMING_BUDGET_RANGE_S = (0.0, 3600.0)  # 0: exactly --frames frames
 WORKERS_RANGE = (1, 256)
 ERROR_FRAMES_RANGE = (1, 64)           # bench.run.config.ERROR_FRAMES_RANGE; 1: no error frames
+BUDGET_RANGE_S = (1.0, 7 * 86400.0)    # bench.run.config.BUDGET_RANGE_S
 CASE_TIMEOUT_RANGE_S = (0.0, 86400.0)  # stress --timeout, above 0
 FUZZ_EXAMPLES_RANGE = (1, 1_000_000)
 
@@ -85,6 +87,25 @@ def int_in(low: int, high: int, what: str = ""):
         return value
     parse.bounds = f"an integer in [{low}, {high}]"
     return parse
+
+
+def duration(text: str) -> float:
+    """An argparse `type=`: a duration ('90s', '10m', '1h30m', seconds) within BUDGET_RANGE_S, or
+    'none' (math.inf: no budget, for a script whose default has one)."""
+    from bench.run.budget import parse_duration
+    if str(text).strip().lower() == "none":
+        return math.inf
+    try:
+        value = parse_duration(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    low, high = BUDGET_RANGE_S
+    if not low <= value <= high:
+        raise argparse.ArgumentTypeError(f"must be a duration from {low:g} s to {high / 86400:g} days, got {text!r}")
+    return value
+
+
+duration.bounds = "a duration (90s, 10m, 1h30m) or none"
 
 
 def float_in(low: float, high: float, low_open: bool = False, high_open: bool = False):

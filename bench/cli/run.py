@@ -1,13 +1,16 @@
 """`gibench run`: methods over scenes -> a run folder (results, images, references, manifest)."""
 from __future__ import annotations
 
+import math
 import sys
+import time
 from pathlib import Path
 
 from bench.cli import options
-from bench.protocol.registry import MethodLoadError, load_method
 from bench.run import serial
 from bench.run.config import RunConfig
+
+STARTED = time.perf_counter()   # the command's start (imports done before it): a --budget counts from here
 
 
 def add_parser(sub) -> None:
@@ -25,29 +28,21 @@ def add_parser(sub) -> None:
     p.add_argument("--scheduler", type=options.non_empty, default=None, metavar="ADDRESS",
                    help="run rows and references on an existing dask.distributed cluster (tcp://host:8786)")
     p.add_argument("--quick", action="store_true",
-                   help="a first report in minutes: scenes " + ",".join(options.QUICK_SCENES)
-                        + " (unless --scenes), the fastest and the default rung of each ladder, timing budget 0.3 s, "
-                        "references capped at %d spp (unless --reference-spp), %d error frames (unless --error-frames)"
-                        % (options.QUICK_REFERENCE_SPP, options.QUICK_ERROR_FRAMES))
+                   help="a first report in minutes: a %d-minute budget (unless --budget) over the default corpus, "
+                        "timing budget 0.3 s, references capped at %d spp (unless --reference-spp), %d error frames "
+                        "(unless --error-frames)" % (options.QUICK_BUDGET_S // 60, options.QUICK_REFERENCE_SPP,
+                                                     options.QUICK_ERROR_FRAMES))
+    p.add_argument("--budget", type=options.duration, default=None, metavar="DURATION",
+                   help="the run's time budget (90s, 10m, 1h30m; none: no budget): the rows that fit it by the cost plan, every "
+                        "method's defaults first, then the ends of the ladders, then their middles; the others "
+                        "are recorded as skipped (over budget), and no row starts once the budget is spent")
+    p.add_argument("--plan", action="store_true",
+                   help="print the cost plan (rows by scene and method, predicted time per phase, what is "
+                        "skipped and why) and stop: nothing is rendered, no run folder is made")
     p.add_argument("--defaults-only", action="store_true",
                    help="run each method at its defaults only (default: its quality ladder, fast -> accurate, "
                         "one time-vs-error curve per method; a method given --param runs those sets instead)")
     p.set_defaults(func=main)
-
-
-def quick_rungs(methods: list[str], params: dict) -> dict:
-    """--quick: the fastest rung and the defaults of each ladder (a two-point curve), unless --param sets them."""
-    out = dict(params)
-    for m in methods:
-        if m in out:
-            continue
-        try:
-            ladder = load_method(m).ladder
-        except MethodLoadError:
-            continue
-        if ladder:
-            out[m] = [dict(ladder[0])] + ([{}] if dict(ladder[0]) else [])
-    return out
 
 
 def main(args) -> int:
@@ -58,10 +53,10 @@ def main(args) -> int:
     width, height = args.res
     params = options.param_sets(args.param)
     options.distinct_param_sets(params)
-    scenes = args.scenes or list(options.QUICK_SCENES if args.quick else options.DEFAULT_SCENES)
+    scenes = args.scenes or list(options.DEFAULT_SCENES)
     budget = args.timing_budget if args.timing_budget is not None else (0.3 if args.quick else 1.0)
-    if args.quick and not args.defaults_only:
-        params = quick_rungs(methods, params)
+    run_budget = args.budget if args.budget is not None else (options.QUICK_BUDGET_S if args.quick else None)
+    run_budget = None if run_budget == math.inf else run_budget   # --budget none
     cfg = RunConfig(scenes=scenes, methods=methods, width=width, height=height, frames=args.frames,
                     warmup=args.warmup, seed=args.seed, out=Path(args.out) if args.out else None, force=args.force,
                     views=args.views, params=params, references=not args.no_reference,
@@ -71,8 +66,11 @@ def main(args) -> int:
                     timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers,
                     shadow_resolution=args.shadow_resolution,
                     error_frames=args.error_frames if args.error_frames is not None else
-                    (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES))
-    df, runner = serial.run(cfg, log=lambda m: print(m, file=sys.stderr))
+                    (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES), budget_s=run_budget)
+    if args.plan:
+        print(serial.plan_only(cfg).table())
+        return 0
+    df, runner = serial.run(cfg, log=lambda m: print(m, file=sys.stderr), started=STARTED)
     print(runner.summary())
     print(f"results: {runner.run_dir / 'results.csv'}")
     return options.nothing_useful(runner)

@@ -141,6 +141,16 @@ class MethodBase:
         (bench.run.harness). False unless a method says so."""
         return False
 
+    @classmethod
+    def cost_terms(cls, params: dict, size) -> dict | None:
+        """What a frame and the preparation of this method cost scales with, beyond the pixels and
+        triangles every row has: {term: work count} from the resolved `params` and `size`
+        (bench.protocol.cost.CostFacts), e.g. {"pixel_vpls": pixels x VPLs}. The run's cost model
+        fits a coefficient per term from measured rows (bench.run.cost). None: the method's own
+        guard will skip this row before rendering. Nothing beyond the base terms unless a method
+        says so."""
+        return {}
+
     def prepare(self, gpu, scene, facts, params: dict, view) -> None:
         self.params = params
 

@@ -12,6 +12,7 @@ from bench.run.harness import TimingBudget
 
 
 ERROR_FRAMES_RANGE = (1, 64)   # RunConfig.error_frames, `--error-frames`
+BUDGET_RANGE_S = (1.0, 7 * 86400.0)   # RunConfig.budget_s, `--budget`
 
 
 def cache_root() -> Path:
@@ -41,6 +42,7 @@ class RunConfig:
     scheduler: str | None = None                    # a dask.distributed scheduler address (bench.run.cluster)
     workers: int | None = None                      # or a LocalCluster of this many worker processes
     error_frames: int = 8                           # untimed frames of a fresh instance per row (bias, variance, flicker); 1: none
+    budget_s: float | None = None                   # the run's time budget: rows that do not fit are skipped (bench.run.budget)
 
     def validate(self) -> None:
         for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
@@ -50,6 +52,8 @@ class RunConfig:
                 raise ValueError(f"{name}={value} outside [{low}, {high}]")
         if self.timing_budget_s is not None and not (0.0 <= float(self.timing_budget_s) <= 3600.0):
             raise ValueError(f"timing budget {self.timing_budget_s} s outside [0, 3600]")
+        if self.budget_s is not None and not (0.0 < float(self.budget_s) <= BUDGET_RANGE_S[1]):
+            raise ValueError(f"budget {self.budget_s} s outside (0, {BUDGET_RANGE_S[1]:.0f}]")
         if not self.scenes:
             raise ValueError("no scene given")
         if not self.methods:

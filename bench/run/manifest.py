@@ -89,7 +89,7 @@ def method_declarations(methods) -> dict:
     return out
 
 
-def write_manifest(run_dir: Path, ctx, cfg: RunConfig, scenes: dict, facts: dict) -> None:
+def write_manifest(run_dir: Path, ctx, cfg: RunConfig, scenes: dict, facts: dict, plan: dict | None = None) -> None:
     manifest = {
         "schema_version": store.SCHEMA_VERSION,
         "run_id": uuid.uuid4().hex,   # this invocation: a copy of the folder is the same run, a re-run is not
@@ -105,6 +105,8 @@ def write_manifest(run_dir: Path, ctx, cfg: RunConfig, scenes: dict, facts: dict
         # an earlier run into the folder keeps its methods' declarations (its rows are kept too)
         "methods": {**((read_manifest(run_dir) or {}).get("methods") or {}), **method_declarations(cfg.methods)},
     }
+    if plan is not None:   # the cost plan made before any work (bench.run.budget): predicted phases
+        manifest["plan"] = plan
     store.atomic_write_text(Path(run_dir) / MANIFEST, json.dumps(manifest, indent=2, default=str))
 
 
@@ -127,12 +129,29 @@ def _update(run_dir: Path, fn) -> None:
 TIMING_LOCK_CONTENDED_MS = 10.0   # a longer wait for the host's timing lock: another process was timing
 
 
-def record_phases(run_dir: Path, phases: dict, shared_summary: dict, rows: list[dict]) -> None:
+def predicted_vs_actual(predicted: dict, actual: dict) -> dict:
+    """The plan's predicted seconds beside the measured ones, per phase of the runner's accounting
+    (the plan's shared passes are timed frames and preparation, counted under timing)."""
+    pred = dict(predicted)
+    pred["timing"] = pred.get("timing", 0.0) + pred.pop("shared_passes", 0.0)
+    pred["setup"] = pred.get("setup", 0.0)
+    act = dict(actual)
+    act["setup"] = act.get("setup", 0.0) + act.pop("scene_upload", 0.0)
+    out = {k: {"predicted_s": round(float(pred.get(k, 0.0)), 2), "actual_s": round(float(act.get(k, 0.0)), 2)}
+           for k in dict.fromkeys([*pred, *act])}
+    out["total"] = {"predicted_s": round(sum(float(v) for v in pred.values()), 2),
+                    "actual_s": round(sum(float(v) for v in act.values()), 2)}
+    return out
+
+
+def record_phases(run_dir: Path, phases: dict, shared_summary: dict, rows: list[dict], plan=None) -> None:
     """Add the wall time of each phase, the shared passes' measurements, each rendered row's peak
     memory, the harness overhead over the rendered rows and their waits for the host's timing
     lock (`timing_lock`: rows that waited, seconds in all) to the manifest."""
     def add(manifest):
         manifest["phases_s"] = {k: round(v, 3) for k, v in phases.items()}
+        if plan is not None:
+            manifest["phases_predicted_vs_actual"] = predicted_vs_actual(plan.phases(), phases)
         if shared_summary:   # each view's shared passes, measured once, whose medians rows add
             manifest["shared_passes"] = shared_summary
         manifest["peak_rss_mb"] = {f"{r['scene']}/{r['view']}/{r['method']}@{r.get('image_dir', '').rsplit('/', 1)[-1]}":

@@ -264,12 +264,14 @@ class RunState:
         self.state = {"invocation": invocation, "finished": False, "planned": int(planned), "recorded": 0, "done": []}
         self._write()
 
-    def mark_done(self, row: dict) -> None:
-        """Count a recorded row; note it as finished unless it failed (a resumed run tries it again)."""
+    def mark_done(self, row: dict, write: bool = True) -> None:
+        """Count a recorded row; note it as finished unless it failed (a resumed run tries it again).
+        `write=False` defers the file to the next write (a row that cost nothing to produce)."""
         self.state["recorded"] += 1
         if not Status.is_failed(row.get("status")) and isinstance(row.get("row_key"), str):
             self.state["done"].append(f"{row['row_key']}|{row['image_dir']}")
-        self._write()
+        if write:
+            self._write()
 
     def finish(self) -> None:
         self.state["finished"] = True

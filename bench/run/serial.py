@@ -59,7 +59,7 @@ from bench.protocol.method import resolve_params
 from bench.protocol.registry import load_method
 from bench.protocol.versioning import method_version
 from bench.protocol.vocabulary import Status, failure_reason, row_identity
-from bench.run import cluster, plan
+from bench.run import budget, cluster, cost, plan
 from bench.run.config import RunConfig, auto_shadow_resolution, effective_shadow_resolution, expand_param_sets  # noqa: F401  (the run's vocabulary)
 from bench.run.execute import SharedPassCache, render_outcome
 from bench.run.manifest import record_phases, write_manifest
@@ -70,15 +70,17 @@ from bench.run.row_cache import RowCache, row_cache_key, row_image_names
 class Runner:
     """Runs a RunConfig; `run()` returns the results DataFrame."""
 
-    def __init__(self, cfg: RunConfig, log=print):
+    def __init__(self, cfg: RunConfig, log=print, started: float | None = None):
         t_setup = time.perf_counter()
+        # the budget counts from `started` (the command's start, time.perf_counter()), else from here
+        self.started = t_setup if started is None else min(float(started), t_setup)
+        self.plan: budget.RunPlan | None = None
         cfg.validate()
         self.cfg = cfg
         self.log = log
-        self.resolved = self._validate_params()
-        self.scene_refs: dict = {}  # scene name -> what a worker loads it from (corpus name / path / Scene)
-        # bad input (a scene, a scene file, a camera) is found before the run folder is created
-        self.scenes = self._load_scenes()
+        # bad input (a parameter, a scene, a scene file, a camera) is found before the run folder is created
+        self.resolved = validate_params(cfg)
+        self.scenes, self.scene_refs = load_scenes(cfg)   # scene_refs: what a worker loads each from
         self.jobs = plan.make_jobs(cfg, self.scenes)
         self.run_dir = Path(cfg.out) if cfg.out else plan.default_run_dir()
         plan.prepare_run_dir(self.run_dir)
@@ -101,36 +103,6 @@ class Runner:
         # wall seconds per phase of the run (the manifest records them)
         self.phases = {"setup": time.perf_counter() - t_setup, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0,
                        "error_frames": 0.0, "rows_other": 0.0, "references": 0.0, "metrics": 0.0}
-
-    def _validate_params(self) -> dict:
-        """Every --param of every method, checked before the first row: {(method, i): resolved}."""
-        cfg = self.cfg
-        stray = sorted(set(cfg.params) - set(cfg.methods))
-        if stray:
-            raise ValueError(f"--param given for method(s) {', '.join(stray)} not in this run "
-                             f"(methods: {', '.join(cfg.methods)})")
-        resolved = {}
-        for method in cfg.methods:
-            try:
-                cls = load_method(method)
-            except Exception:  # a method that fails to load becomes a failed row (recorded, the run goes on)
-                continue
-            for i, pset in enumerate(expand_param_sets(cfg, method)):
-                resolved[(method, i)] = resolve_params(cls, pset)
-        return resolved
-
-    def _load_scenes(self) -> dict:
-        """Corpus names, .toml scene files, or Scene objects (tests, scripts)."""
-        scenes, given = {}, {}
-        for item in self.cfg.scenes:
-            scene = item if isinstance(item, Scene) else load_scene(item)
-            what = str(item) if not isinstance(item, Scene) else (scene.source or "a Scene object")
-            if scene.name in scenes:
-                raise ValueError(f"two scenes are named '{scene.name}' ({given[scene.name]} and {what}): "
-                                 f"scene names must be unique within a run")
-            scenes[scene.name], given[scene.name] = scene, what
-            self.scene_refs[scene.name] = item if isinstance(item, str) else scene
-        return scenes
 
     def _job_identity(self, scene, job) -> tuple:
         """(row identity, image dir) of a job, as the row will record them."""
@@ -167,7 +139,13 @@ class Runner:
         t_setup = time.perf_counter()
         ctx = gl.create_context()
         facts = {name: compute_facts(s) for name, s in scenes.items()}
-        write_manifest(self.run_dir, ctx, cfg, scenes, facts)
+        self.plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=self.resolved)
+        if cfg.budget_s is not None:
+            budget.apply_budget(self.plan, cfg.budget_s)
+            jobs = self.jobs = self.plan.ordered_jobs()   # defaults first: a short budget cuts the middles
+        if cfg.budget_s is not None or cfg.progress:   # a quiet run (--no-progress) says only what goes wrong
+            self.log(f"gibench: plan: {self.plan.summary()}")
+        write_manifest(self.run_dir, ctx, cfg, scenes, facts, plan=self.plan.to_json())
         if cfg.out is None or self.run_dir.parent.name == "runs":
             plan.point_latest(self.run_dir)
         renderer = ctx.info.get("GL_RENDERER", "")
@@ -202,7 +180,8 @@ class Runner:
             self.phases["metrics"] += references.seconds["metrics"]
         self.folder.check()
         df = store.save_results(self.run_dir, self.kept + self.rows)
-        record_phases(self.run_dir, self.phases, self.shared_summary, self.rows)
+        record_phases(self.run_dir, self.phases, self.shared_summary, self.rows, self.plan)
+        self._record_history()
         self.folder.check()   # the manifest's phases went nowhere if the folder was replaced meanwhile
         self.state.finish()
         write_summary(self.run_dir)
@@ -223,17 +202,27 @@ class Runner:
                 if progress is not None:
                     progress.set_description(f"{job.scene}/{job.view}/{job.method}")
                 t_row = time.perf_counter()
+                spent = self.budget_spent(planned)
+                if spent is not None:
+                    planned = {"done": True, "row": self._skip(planned["row"], spent)}
                 row = self._run_row(ctx, scenes[job.scene], facts[job.scene], job.view, planned)
                 if references is not None and not Status.is_failed(row["status"]):
                     references.evaluate(row, scenes[job.scene], job.view)
                 self._account_row(row, plan_s + time.perf_counter() - t_row)
                 self.rows.append(row)
-                self.record(row)
+                # a row that cost nothing (cached, resumed, skipped) is saved with the next rendered one
+                # or at the end: saving the table after each of hundreds of skipped rows took ~30 s
+                self.record(row, write=not planned["done"])
                 if progress is not None:
                     progress.update(1)
 
-    def record(self, row: dict) -> None:
-        """A row is done: save the table, mark it in the run state (the one place either happens)."""
+    def record(self, row: dict, write: bool = True) -> None:
+        """A row is done: save the table, mark it in the run state (the one place either happens).
+        `write=False` defers both files to the next write or the end of the run (an interrupted run
+        then re-plans the deferred rows, which cost nothing to redo)."""
+        if not write:
+            self.state.mark_done(row, write=False)
+            return
         self.folder.check()
         self.save()
         self.state.mark_done(row)
@@ -297,8 +286,11 @@ class Runner:
             cached["status"] = Status.CACHED
             self.counts["cached"] += 1
             return {"done": True, "row": cached}
+        over = self.plan.skipped_jobs().get((job.scene, job.view, job.method, job.index)) if self.plan else None
+        if over is not None:
+            return {"done": True, "row": self._skip(row, over)}
         return {"done": False, "row": row, "cls": cls, "params": params, "key": key, "image_dir": image_dir,
-                "scene": scene, "view": view}
+                "scene": scene, "view": view, "job": job}
 
     def finish_row(self, planned: dict, outcome: dict) -> dict:
         """Write a rendered row's images and cache entry (or record its skip / failure)."""
@@ -320,6 +312,43 @@ class Runner:
         self.counts["ok"] += 1
         self.cache.store(planned["key"], row, image_dir)
         return row
+
+    def _skip(self, row: dict, reason: str) -> dict:
+        row["status"] = Status.skipped(reason)
+        self.counts["skipped"] += 1
+        return row
+
+    def budget_spent(self, planned: dict) -> str | None:
+        """Why a row that would render now is not started (the run's budget is spent), else None.
+        Spent = the time since the run began, plus this row's predicted time, plus what the rows
+        already run still need at the end (their metrics, their views' reference refinement),
+        exceeds the budget."""
+        if self.cfg.budget_s is None or planned.get("done") or self.plan is None:
+            return None
+        elapsed = time.perf_counter() - self.started
+        job = planned["job"]
+        row_s = self.plan.job_seconds(job)
+        judged = [r for r in self.rows if Status.has_images(r.get("status"))]
+        views = {(r["scene"], r["view"]) for r in judged}
+        if (job.scene, job.view) not in views:   # this row opens its view: first pass now, refinement at the end
+            row_s += self.plan.views.get((job.scene, job.view), {}).get("references", 0.0)
+        finish_s = self.plan.finish_seconds(views, len(judged))
+        if elapsed + row_s + finish_s <= self.cfg.budget_s:
+            return None
+        return (f"over budget: the budget was spent ({elapsed:.0f} s of {self.cfg.budget_s:.0f} s used, "
+                f"this row predicted {row_s:.0f} s)")
+
+    def _record_history(self) -> None:
+        """This run's predicted and actual phases, for the next plan's local model (bench.run.cost)."""
+        judged = [r for r in self.rows if Status.has_images(r.get("status"))]
+        pixels = self.cfg.width * self.cfg.height
+        entry = {"setup_s": self.phases["setup"] + self.phases["scene_upload"], "rows_judged": len(judged),
+                 "triangles": sum(s.triangle_count for s in self.scenes.values()),
+                 "actual_s": {k: round(v, 3) for k, v in self.phases.items()},
+                 "predicted_s": self.plan.to_json()["predicted_s"] if self.plan else None}
+        if judged and self.phases["metrics"] > 0:
+            entry["metrics_s_per_pixel"] = self.phases["metrics"] / (len(judged) * pixels)
+        cost.record_history(entry)
 
     def _failed(self, row: dict, exc: Exception) -> dict:
         reason = failure_reason(exc)
@@ -389,8 +418,54 @@ def _interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
-def run(cfg: RunConfig, log=print):
-    """Run and return (DataFrame, Runner)."""
-    runner = Runner(cfg, log=log)
+def validate_params(cfg: RunConfig) -> dict:
+    """Every --param of every method, checked before the first row: {(method, i): resolved}."""
+    stray = sorted(set(cfg.params) - set(cfg.methods))
+    if stray:
+        raise ValueError(f"--param given for method(s) {', '.join(stray)} not in this run "
+                         f"(methods: {', '.join(cfg.methods)})")
+    resolved = {}
+    for method in cfg.methods:
+        try:
+            cls = load_method(method)
+        except Exception:  # a method that fails to load becomes a failed row (recorded, the run goes on)
+            continue
+        for i, pset in enumerate(expand_param_sets(cfg, method)):
+            resolved[(method, i)] = resolve_params(cls, pset)
+    return resolved
+
+
+def load_scenes(cfg: RunConfig) -> tuple[dict, dict]:
+    """Corpus names, .toml scene files, or Scene objects (tests, scripts) -> ({name: Scene},
+    {name: what a worker loads it from: the corpus name or path, or the Scene})."""
+    scenes, given, refs = {}, {}, {}
+    for item in cfg.scenes:
+        scene = item if isinstance(item, Scene) else load_scene(item)
+        what = str(item) if not isinstance(item, Scene) else (scene.source or "a Scene object")
+        if scene.name in scenes:
+            raise ValueError(f"two scenes are named '{scene.name}' ({given[scene.name]} and {what}): "
+                             f"scene names must be unique within a run")
+        scenes[scene.name], given[scene.name] = scene, what
+        refs[scene.name] = item if isinstance(item, str) else scene
+    return scenes, refs
+
+
+def plan_only(cfg: RunConfig) -> budget.RunPlan:
+    """The run's cost plan, made as the run would make it, without a run folder or any rendering."""
+    cfg.validate()
+    resolved = validate_params(cfg)
+    scenes, _ = load_scenes(cfg)
+    jobs = plan.make_jobs(cfg, scenes)
+    ctx = gl.create_context()   # the process's context: its renderer and clock are part of a row's cache key
+    facts = {name: compute_facts(s) for name, s in scenes.items()}
+    run_plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=resolved)
+    if cfg.budget_s is not None:
+        budget.apply_budget(run_plan, cfg.budget_s)
+    return run_plan
+
+
+def run(cfg: RunConfig, log=print, started: float | None = None):
+    """Run and return (DataFrame, Runner); `started`: when the command began (its budget counts from then)."""
+    runner = Runner(cfg, log=log, started=started)
     df = runner.run()
     return df, runner

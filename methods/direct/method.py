@@ -33,5 +33,9 @@ class DirectMethod(MethodBase):
     def frames_identical(cls, params: dict) -> bool:
         return True   # the shared direct pass: no random stream, no state
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        return {}   # one shading pass over the pixels (the shared shadow maps are the view's)
+
     def render(self, frame, prof) -> FrameOutput:
         return FrameOutput(direct=frame.passes.direct.radiance, indirect=None)

@@ -228,6 +228,11 @@ class DeepScreenSpace(MethodBase):
         "max_surfels": Param(16_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
     }
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        # surfels generated from the triangles, splatted into the deep screen buffer's levels
+        return {"surfels": params["surfel_count"], "pixel_levels": size.pixels * params["levels"]}
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         ctx = gpu.ctx

@@ -319,6 +319,11 @@ class ForwardLightCuts(MethodBase):
     }
 
     # ------------------------------------------------------------------ setup (untimed)
+    @classmethod
+    def cost_terms(cls, params, size):
+        # each level's VPLs (about n_avg lit ones) are gathered by every pixel of its tiles
+        return {"pixel_navg": size.pixels * params["n_avg"], "triangle_navg": size.triangles * params["n_avg"]}
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         self.ctx = ctx = gpu.ctx

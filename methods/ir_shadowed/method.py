@@ -172,6 +172,15 @@ class InstantRadiosityShadowed(MethodBase):
                                     1, 10_000_000_000),
     }
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        vpls = params["vpl_count"]
+        if vpls * size.triangles > params["max_triangle_draws"]:
+            return None   # prepare skips the row (its guard)
+        return {"pixel_vpls": size.pixels * vpls,                              # the gather
+                "vpl_triangles": vpls * size.triangles,                       # a hemicube of the scene per VPL
+                "vpl_shadow_texels": vpls * params["shadow_resolution"] ** 2}  # and its texels
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         draws = int(params["vpl_count"]) * int(gpu.triangle_count)

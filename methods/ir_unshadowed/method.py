@@ -96,6 +96,10 @@ class InstantRadiosityUnshadowed(MethodBase):
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
     }
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        return {"pixel_vpls": size.pixels * params["vpl_count"]}   # every pixel gathers every VPL
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         self.ctx = gpu.ctx

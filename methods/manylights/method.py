@@ -108,6 +108,12 @@ class ManyLights(MethodBase):
     def frames_identical(cls, params: dict) -> bool:
         return params["jitter_frames"] == 1   # centroid VPLs: no random stream; jittered ones draw anew each frame
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        if size.triangles > params["max_triangles"]:
+            return None   # prepare skips the row (its guard)
+        return {"pixel_triangles": size.pixels * size.triangles}   # every pixel sums every triangle
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         if gpu.triangle_count > params["max_triangles"]:

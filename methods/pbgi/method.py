@@ -214,6 +214,13 @@ class TextureSpacePBGI(MethodBase):
     }
 
     # ------------------------------------------------------------------ prepare (untimed)
+    @classmethod
+    def cost_terms(cls, params, size):
+        # lightmap texels: the charts at texel_density per scene radius, up to the largest lightmap
+        density = params["texel_density"] / max(size.radius, 1e-9)
+        texels = min(density * density * size.area_m2, params["max_lightmap_resolution"] ** 2)
+        return {"texels": texels, "texel_emitters": texels * params["emitter_budget"]}
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         self.ctx = ctx = gpu.ctx

@@ -171,6 +171,10 @@ class ScreenSpaceDirectionalOcclusion(MethodBase):
                                     1e-6, 1.0),
     }
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        return {"pixel_samples": size.pixels * params["sample_count"]}   # screen-space samples per pixel
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         ctx = self.ctx = gpu.ctx

@@ -221,6 +221,14 @@ class ClusteredVirtualAreaLights(MethodBase):
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
     }
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        clusters = params["cluster_count"]
+        return {"pixel_clusters": size.pixels * clusters,                            # per-pixel VAL gather
+                "cluster_triangles": clusters * size.triangles,                     # a shadow map per VAL
+                "cluster_shadow_texels": clusters * params["shadow_resolution"] ** 2,
+                "vpls": params["vpl_count"]}                                        # k-means over the VPLs
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         self.ctx = ctx = gpu.ctx

@@ -275,6 +275,11 @@ class VisibilityGates(MethodBase):
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
     }
 
+    @classmethod
+    def cost_terms(cls, params, size):
+        return {"pixel_vpls": size.pixels * params["vpl_count"],          # gated gather
+                "voxels": params["voxel_resolution"] ** 3}                # the topology of empty space
+
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
         t0 = time.perf_counter()

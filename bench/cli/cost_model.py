@@ -1,0 +1,63 @@
+"""`gibench cost-model RUNS... [--write]`: fit the cost model's prior from measured run folders and
+say how well it predicts them (bench.run.cost); `--write` replaces the shipped prior
+(bench/run/cost_prior.json) with it, its provenance (runs, rows, date, machine) recorded."""
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import platform
+import statistics
+import sys
+from pathlib import Path
+
+from bench.run import cost
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("cost-model", help="fit the run cost model's prior from run folders (--write ships it)")
+    p.add_argument("runs", nargs="+", help="run folders whose rows were rendered (not from cache) on this machine")
+    p.add_argument("--write", action="store_true", help=f"write the fitted prior to {cost.PRIOR_FILE.name}")
+    p.set_defaults(func=main)
+
+
+def main(args) -> int:
+    samples = {}
+    for run in args.runs:
+        if not (Path(run) / "manifest.json").is_file():
+            raise FileNotFoundError(f"{run}: not a run folder (no manifest.json)")
+        samples[run] = cost.samples_from_run(Path(run))
+    train = [s for group in samples.values() for s in group]
+    if not train:
+        print("gibench: no rendered row with timings in these runs: nothing to fit", file=sys.stderr)
+        return 1
+    provenance = {"runs": {Path(r).name: len(s) for r, s in samples.items()}, "rows": len(train),
+                  "fitted": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"),
+                  "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores",
+                  "command": "gibench cost-model " + " ".join(Path(r).name for r in args.runs) + " --write"}
+    model = cost.CostModel.fit(train, cost.reference_metas(), provenance)
+    runs = [cost.run_phases(Path(r)) for r in args.runs]
+    runs = [r for r in runs if r is not None]
+    if runs:   # set-up (against the scenes' triangles) and metrics per pixel, from the runs' manifests
+        model.setup = cost.fit_linear([{"triangles": r["triangles"]} for r in runs], [r["setup_s"] for r in runs])
+        per_pixel = [r["metrics_s_per_pixel"] for r in runs if r.get("metrics_s_per_pixel")]
+        if per_pixel:
+            model.metrics_s_per_pixel = statistics.median(per_pixel)
+    for run, group in samples.items():
+        ratios = [p / a for p, a in (predicted_and_actual(model, s) for s in group) if a > 0]
+        predicted = sum(predicted_and_actual(model, s)[0] for s in group)
+        actual = sum(predicted_and_actual(model, s)[1] for s in group)
+        if ratios:
+            print(f"{run}: {len(group)} rows, rendering predicted {predicted:.0f} s, measured {actual:.0f} s "
+                  f"(x{predicted / actual:.2f}); per row median x{statistics.median(ratios):.2f}")
+    if args.write:
+        cost.PRIOR_FILE.write_text(json.dumps(model.to_json(), indent=1, sort_keys=True) + "\n")
+        print(f"wrote {cost.PRIOR_FILE}")
+    return 0
+
+
+def predicted_and_actual(model: cost.CostModel, s: cost.Sample) -> tuple[float, float]:
+    """A measured row's rendering seconds (preparation, timed and error frames, the rest) and the model's."""
+    p = model.row(s.method, s.terms, frames=s.frames, warmup=s.warmup, timing_budget_s=s.timing_budget_s,
+                  error_frames=s.error_frames, renders=s.error_renders, images=s.images, judged=False)
+    predicted = p["precompute"] + p["timing"] + p["error_frames"] + p["rows_other"]
+    return predicted, s.prepare_s + s.frames_total_s + s.error_s + (s.other_s or 0.0)

@@ -1,0 +1,273 @@
+"""A run's cost plan, made before any work, and the rows a time budget keeps (issue #29).
+
+`make_plan` predicts each job with the machine's cost model (bench.run.cost): a row the row cache
+holds costs nothing but its metrics, a row its method's guard will skip costs nothing, a rendered
+row costs its preparation, timed frames, error frames, the harness's part and its metrics; each
+view adds its shared passes once and the Mitsuba samples its references still need (from what
+the reference cache already holds). `apply_budget` then keeps the rows that fit a budget, in the
+order a user wants them: every method's defaults first (scene by scene, so each method is
+represented before any scene gets its ladder), then the ends of the ladders (a two-point
+time-vs-error curve), then their middles; the others are recorded as
+`skipped: over budget (predicted N s)`. The plan is printed (`gibench run --plan` prints it and
+stops), kept in the manifest beside the actual phase times, and the runner stops starting rows
+when the budget is spent (bench.run.serial).
+"""
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+
+from bench.gl.profiler import default_clock
+from bench.protocol.cost import CostFacts
+from bench.protocol.method import resolve_params
+from bench.protocol.registry import load_method
+from bench.protocol.versioning import method_version
+from bench.protocol.vocabulary import REFERENCE_COMPONENTS
+from bench.run import cost
+from bench.run.config import RunConfig
+from bench.run.row_cache import RowCache, row_cache_key, row_image_names
+
+ROW_PHASES = ("precompute", "timing", "error_frames", "rows_other", "metrics")
+PHASES = ("setup", "shared_passes", "references") + ROW_PHASES
+REFERENCE_FIRST_PASS_SPP = 64   # bench.run.references.ReferenceProvider.REFERENCE_FIRST_PASS_SPP
+PRIORITY_NAMES = ("defaults", "ladder ends", "ladder middles")
+
+
+def parse_duration(text: str) -> float:
+    """'90', '90s', '10m', '1h30m', '2.5m' -> seconds; one-line ValueError otherwise."""
+    s = str(text).strip().lower()
+    if re.fullmatch(r"\d+(\.\d+)?", s):
+        return float(s)
+    parts = re.fullmatch(r"(?:(\d+(?:\.\d+)?)h)?(?:(\d+(?:\.\d+)?)m)?(?:(\d+(?:\.\d+)?)s)?", s)
+    if not s or parts is None or not any(parts.groups()):
+        raise ValueError(f"'{text}' is not a duration (examples: 90s, 10m, 1h30m)")
+    h, m, sec = (float(g) if g else 0.0 for g in parts.groups())
+    return h * 3600 + m * 60 + sec
+
+
+@dataclass
+class PlannedRow:
+    job: object                         # bench.run.plan.Job
+    priority: int                       # 0 defaults, 1 ladder ends, 2 ladder middles
+    status: str                         # "render", "cached", "guard", "over budget"
+    seconds: dict = field(default_factory=dict)   # row phase -> predicted seconds
+    reason: str = ""
+
+    @property
+    def total(self) -> float:
+        return sum(self.seconds.values())
+
+
+@dataclass
+class RunPlan:
+    rows: list
+    views: dict                         # (scene, view) -> {"shared_passes": s, "references": s}
+    setup_s: float
+    budget_s: float | None = None
+    model: dict = field(default_factory=dict)      # the model's provenance
+    metrics_per_row_s: float = 0.0
+
+    def kept(self) -> list:
+        return [r for r in self.rows if r.status != "over budget"]
+
+    def _kept_views(self) -> set:
+        """Views with a row that renders or comes from the cache (a guard-skipped row opens none)."""
+        return {(r.job.scene, r.job.view) for r in self.kept() if r.status in ("render", "cached")}
+
+    def phases(self) -> dict:
+        """Predicted seconds per phase of the rows and views the run keeps."""
+        out = {p: 0.0 for p in PHASES}
+        out["setup"] = self.setup_s
+        for r in self.kept():
+            for p, v in r.seconds.items():
+                out[p] += v
+        for key in self._kept_views():
+            out["references"] += self.views[key]["references"]
+        for key, _ in self._kept_passes():   # under a budget a view is visited once per priority level
+            out["shared_passes"] += self.views[key]["shared_passes"]
+        return out
+
+    def _kept_passes(self) -> set:
+        return {((r.job.scene, r.job.view), r.priority if self.budget_s else 0) for r in self.kept()
+                if r.status in ("render", "cached")}
+
+    def total(self) -> float:
+        return sum(self.phases().values())
+
+    def ordered_jobs(self) -> list:
+        """The jobs in the order a budgeted run takes them: every method's defaults (view by view),
+        then the ladders' ends, then their middles, so that if time runs short it is the middles
+        that go, not a method's only row."""
+        return [r.job for r in sorted(self.rows, key=lambda r: r.priority)]   # stable: job order within a level
+
+    def job_seconds(self, job) -> float:
+        """Predicted seconds of one job's row (0 for a job the plan does not know)."""
+        for r in self.rows:
+            if r.job == job:
+                return r.total
+        return 0.0
+
+    def finish_seconds(self, views: set, rows: int) -> float:
+        """What the end of a run still costs for `rows` rows over `views`: their metrics and the
+        refinement of those views' references (most of a reference's samples come after its first pass)."""
+        refine = sum(self.views.get(v, {}).get("references_refinement", 0.0) for v in views)
+        return refine + rows * self.metrics_per_row_s
+
+    def skipped_jobs(self) -> dict:
+        """job -> the reason it is recorded as skipped without running (over budget)."""
+        return {(r.job.scene, r.job.view, r.job.method, r.job.index): r.reason for r in self.rows
+                if r.status == "over budget"}
+
+    def summary(self) -> str:
+        counts: dict = {}
+        for r in self.rows:
+            counts[r.status] = counts.get(r.status, 0) + 1
+        return (", ".join(f"{n} {status}" for status, n in sorted(counts.items())) + f"; predicted "
+                f"{fmt_duration(self.total())}" + (f" of a {fmt_duration(self.budget_s)} budget" if self.budget_s else ""))
+
+    def to_json(self) -> dict:
+        counts: dict = {}
+        for r in self.rows:
+            counts[r.status] = counts.get(r.status, 0) + 1
+        return {"budget_s": self.budget_s, "predicted_s": {k: round(v, 2) for k, v in self.phases().items()},
+                "predicted_total_s": round(self.total(), 2), "rows": counts, "model": self.model}
+
+    def table(self) -> str:
+        """The plan as text: rows by scene and method, what is skipped and why, phases and total."""
+        lines = [f"{'scene/view':28s} {'method':18s} {'rows':>4s} {'render':>6s} {'cached':>6s} "
+                 f"{'skipped':>7s} {'predicted':>10s}"]
+        groups: dict = {}
+        for r in self.rows:
+            groups.setdefault((f"{r.job.scene}/{r.job.view}", r.job.method), []).append(r)
+        for (where, method), rows in groups.items():
+            kept = [r for r in rows if r.status != "over budget"]
+            lines.append(f"{where:28s} {method:18s} {len(rows):4d} {sum(r.status == 'render' for r in rows):6d} "
+                         f"{sum(r.status == 'cached' for r in rows):6d} "
+                         f"{sum(r.status in ('guard', 'over budget') for r in rows):7d} "
+                         f"{sum(r.total for r in kept):9.1f}s")
+        for key in sorted(self._kept_views()):
+            v = self.views[key]
+            if v["references"] > 0 or v["shared_passes"] > 0:
+                lines.append(f"{key[0] + '/' + key[1]:28s} {'(view)':18s} references {v['references']:.1f}s, "
+                             f"shared passes {v['shared_passes']:.1f}s")
+        skipped = [r for r in self.rows if r.status in ("guard", "over budget")]
+        if skipped:
+            lines.append("skipped:")
+            lines += [f"  {r.job.scene}/{r.job.view}/{r.job.method} #{r.job.index}: {r.reason}" for r in skipped]
+        phases = self.phases()
+        lines.append("predicted: " + ", ".join(f"{p} {v:.0f}s" for p, v in phases.items() if v >= 0.5)
+                     + f"; total {fmt_duration(self.total())}"
+                     + (f" of a {fmt_duration(self.budget_s)} budget" if self.budget_s else ""))
+        return "\n".join(lines)
+
+
+def fmt_duration(seconds: float) -> str:
+    seconds = max(float(seconds), 0.0)
+    return f"{int(seconds // 60)}m{seconds % 60:04.1f}s" if seconds >= 60 else f"{seconds:.1f}s"
+
+
+def rung_priority(cls, params: dict, cfg: RunConfig, index: int, count: int) -> int:
+    """0: a method's defaults (or its only set), 1: the ends of its ladder or grid, 2: the middles."""
+    if count <= 1 or not params:
+        return 0
+    return 1 if index in (0, count - 1) else 2
+
+
+def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model: cost.CostModel | None = None,
+              resolved: dict | None = None) -> RunPlan:
+    """Predict every job of a run (nothing renders; the row and reference caches are only read)."""
+    renderer, clock = ctx.info.get("GL_RENDERER", ""), default_clock(ctx)
+    if model is None:
+        by_hash = {f.content_hash: f for f in facts.values()}
+        model = cost.CostModel.prior().local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history())
+    rows_cache = RowCache(log=lambda m: None)
+    counts: dict = {}
+    for job in jobs:
+        counts[(job.scene, job.view, job.method)] = counts.get((job.scene, job.view, job.method), 0) + 1
+    planned = []
+    views_needed: dict = {}
+    for job in jobs:
+        scene = scenes[job.scene]
+        size = CostFacts.of(facts[job.scene], cfg.width, cfg.height)
+        try:
+            cls = load_method(job.method)
+            params = (resolved or {}).get((job.method, job.index)) or resolve_params(cls, job.params)
+            terms = cost.row_terms(cls, params, size)
+            version = method_version(cls)
+        except Exception as exc:   # the run records it as a failed row; it costs nothing
+            planned.append(PlannedRow(job, 0, "guard", {}, f"fails to load ({' '.join(str(exc).split())[:80]})"))
+            continue
+        priority = rung_priority(cls, job.params, cfg, job.index, counts[(job.scene, job.view, job.method)])
+        judged = cfg.references
+        metrics_s = model.metrics_s_per_pixel * size.pixels if judged else 0.0
+        key = row_cache_key(scene, job.view, job.method, version, params, cfg, renderer, clock)
+        if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
+            planned.append(PlannedRow(job, priority, "cached", {"metrics": metrics_s}, "in the row cache"))
+            views_needed.setdefault((job.scene, job.view), False)
+            continue
+        if terms is None:
+            planned.append(PlannedRow(job, priority, "guard", {}, "its method's guard skips it (a declared limit)"))
+            continue
+        renders = cost.error_renders(cls, params, int(cfg.error_frames))
+        seconds = model.row(job.method, terms, frames=cfg.frames, warmup=cfg.warmup, timing_budget_s=cfg.timing_budget_s,
+                            error_frames=int(cfg.error_frames), renders=renders,
+                            images=len(row_image_names(cfg.error_frames)), judged=judged)
+        seconds.pop("frame")
+        planned.append(PlannedRow(job, priority, "render", seconds))
+        views_needed[(job.scene, job.view)] = True
+    views = {}
+    for (scene_name, view), renders in views_needed.items():
+        size = CostFacts.of(facts[scene_name], cfg.width, cfg.height)
+        shared = model.shared_passes(size.pixels, size.triangles, cfg.frames, cfg.warmup, cfg.timing_budget_s) \
+            if renders else 0.0
+        first, refinement = reference_seconds(model, cfg, scenes[scene_name], view, size) if cfg.references else (0, 0)
+        views[(scene_name, view)] = {"shared_passes": shared, "references": first + refinement,
+                                     "references_refinement": refinement}
+    for row in planned:   # a view whose rows are all skipped by their guards costs nothing
+        views.setdefault((row.job.scene, row.job.view), {"shared_passes": 0.0, "references": 0.0,
+                                                         "references_refinement": 0.0})
+    metrics_per_row = model.metrics_s_per_pixel * cfg.width * cfg.height if cfg.references else 0.0
+    setup_s = model.setup({"triangles": sum(f.triangle_count for f in facts.values())})
+    return RunPlan(rows=planned, views=views, setup_s=setup_s, model=model.provenance,
+                   metrics_per_row_s=metrics_per_row)
+
+
+def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, size: CostFacts) -> tuple:
+    """(first pass, refinement) seconds of the Mitsuba samples one view's references still need."""
+    try:
+        from reference.api import stored_reference
+        stored = {c: stored_reference(scene, view, cfg.width, cfg.height, c)["spp"] for c in REFERENCE_COMPONENTS}
+    except Exception:   # no Mitsuba: the run leaves error columns empty and renders no reference
+        return 0.0, 0.0
+    cap = int(cfg.reference_spp_cap)
+    first = min(cap, REFERENCE_FIRST_PASS_SPP)
+    total = sum(model.reference_seconds(scene.name, c, size.pixels, cap, stored[c], first) for c in REFERENCE_COMPONENTS)
+    first_s = sum(model.reference_seconds(scene.name, c, size.pixels, first, stored[c], first)
+                  for c in REFERENCE_COMPONENTS)
+    return first_s, max(total - first_s, 0.0)
+
+
+def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
+    """Keep the rows that fit `budget_s`, by priority (defaults, ladder ends, middles), each view's
+    references and shared passes counted with its first kept row; mark the rest over budget."""
+    plan.budget_s = float(budget_s)
+    spent = plan.setup_s
+    referenced: set = set()   # views whose references are counted
+    passes: set = set()       # (view, priority level) whose shared passes are counted
+    order = sorted(range(len(plan.rows)), key=lambda i: (plan.rows[i].priority, i))
+    for i in order:
+        row = plan.rows[i]
+        if row.status == "guard":
+            continue
+        key = (row.job.scene, row.job.view)
+        view_cost = (0.0 if key in referenced else plan.views[key]["references"]) + \
+            (0.0 if (key, row.priority) in passes else plan.views[key]["shared_passes"])
+        cost_s = row.total + view_cost
+        if spent + cost_s <= budget_s or (row.status == "cached" and cost_s <= 1.0):
+            spent += cost_s
+            referenced.add(key)
+            passes.add((key, row.priority))
+        else:
+            row.status, row.reason = "over budget", f"over budget (predicted {math.ceil(cost_s)} s)"
+    return plan

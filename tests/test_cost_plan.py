@@ -1,0 +1,220 @@
+"""The cost plan and the time budget (issue #29): bench.run.cost, bench.run.budget, `run --plan`,
+`run --budget`, `run --quick` as a budget.
+
+The selection tests use a cost model whose every figure is set here (a row costs ROW_S, a view's
+shared passes SHARED_S), so which rows a budget keeps is exact; the fitted prior is checked for
+what it must be (every method of the registry predicted, finite, positive), not for its numbers.
+"""
+from __future__ import annotations
+
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+
+from bench.protocol.cost import CostFacts
+from bench.protocol.method import resolve_params
+from bench.protocol.registry import load_method
+from bench.run import budget, cost, serial
+from bench.run.config import RunConfig
+from tests.conftest import make_open_box
+
+ROW_S, SHARED_S = 300.0, 300.0
+
+
+def fixed_model() -> cost.CostModel:
+    """Every rendered row costs ROW_S (its timed frames), every view's shared passes SHARED_S, nothing else."""
+    return cost.CostModel(timed=cost.Linear(const=ROW_S), setup=cost.Linear(), metrics_s_per_pixel=0.0)
+
+
+@pytest.fixture
+def fixed_costs(monkeypatch, tmp_path):
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))   # rows render, none from an earlier test
+    model = fixed_model()
+    monkeypatch.setattr(cost.CostModel, "prior", classmethod(lambda cls: model))
+    monkeypatch.setattr(cost.CostModel, "local", lambda self, *a, **k: self)
+    monkeypatch.setattr(cost, "record_history", lambda entry: None)
+    return model
+
+
+def small_config(tmp_path, **kw) -> RunConfig:
+    base = dict(scenes=[make_open_box()], methods=["direct", "ssdo"], width=32, height=24, frames=1, warmup=1,
+                references=False, ladders=True, error_frames=1, progress=False, out=tmp_path / "run")
+    base.update(kw)
+    return RunConfig(**base)
+
+
+# ---------------------------------------------------------------------------- durations
+@pytest.mark.parametrize("text, seconds", [("90", 90), ("90s", 90), ("10m", 600), ("1h30m", 5400), ("2.5m", 150),
+                                           ("1h", 3600), ("1m30s", 90)])
+def test_durations(text, seconds):
+    assert budget.parse_duration(text) == seconds
+
+
+@pytest.mark.parametrize("text", ["", "m", "10x", "-5m", "1.2.3s", "ten minutes"])
+def test_bad_durations_are_refused(text):
+    with pytest.raises(ValueError, match="not a duration"):
+        budget.parse_duration(text)
+
+
+@pytest.mark.parametrize("value", ["abc", "0s", "30d"])
+def test_bad_budget_is_one_line_before_any_work(value, capsys, tmp_path):
+    import bench.cli as cli
+    with pytest.raises(SystemExit) as exit_:
+        cli.main(["run", "--budget", value, "--out", str(tmp_path / "run")])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err.strip()
+    assert "--budget" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "run").exists()
+
+
+# ---------------------------------------------------------------------------- the fit
+def test_fit_recovers_a_known_linear_cost():
+    rng = np.random.default_rng(3)
+    rows = [{"pixels": float(p), "pixel_vpls": float(p * v)} for p, v in
+            zip(rng.integers(1000, 100000, 40), rng.integers(16, 4096, 40))]
+    truth = cost.Linear(coef={"pixels": 2e-7, "pixel_vpls": 1e-9}, const=0.01)
+    fitted = cost.fit_linear(rows, [truth(r) for r in rows])
+    for r in rows:
+        assert fitted(r) == pytest.approx(truth(r), rel=1e-3)
+    assert all(v >= 0 for v in fitted.coef.values()) and fitted.const >= 0
+
+
+def test_model_round_trips_through_json():
+    model = cost.CostModel.prior()
+    again = cost.CostModel.from_json(json.loads(json.dumps(model.to_json())))
+    assert again.to_json() == model.to_json()
+
+
+def test_the_shipped_prior_predicts_every_method_at_every_rung():
+    """Every registered method has fitted frame and preparation costs, and predicts a finite,
+    positive row for each rung on a procedural and a real scene's size (or says its guard skips it)."""
+    from bench.protocol.registry import list_methods
+    model = cost.CostModel.prior()
+    assert model.provenance.get("rows", 0) > 100, "the prior was fitted from measured rows (gibench cost-model)"
+    for size in (CostFacts(320, 180, 36, 20.0, 3.0), CostFacts(320, 180, 66_450, 1500.0, 20.0)):
+        for name in list_methods():
+            cls = load_method(name)
+            assert name in model.frame, f"{name}: no fitted frame cost in cost_prior.json"
+            for rung in (cls.ladder or ({},)):
+                terms = cost.row_terms(cls, resolve_params(cls, dict(rung)), size)
+                if terms is None:
+                    continue
+                assert all(math.isfinite(v) and v >= 0 for v in terms.values()), (name, rung, terms)
+                seconds = model.row(name, terms, frames=3, warmup=1, timing_budget_s=1.0, error_frames=8,
+                                    renders=8, images=9, judged=True)
+                assert all(math.isfinite(v) and v >= 0 for v in seconds.values()), (name, rung, seconds)
+                assert seconds["timing"] > 0
+
+
+def test_a_slower_machine_scales_the_prior():
+    """The local model multiplies a method's prior by its cached rows' measured/predicted ratio."""
+    prior = cost.CostModel(frame={"m": cost.Linear(coef={"pixels": 1e-6})})
+    sample = cost.Sample(method="m", terms={"pixels": 1e5, "triangles": 10.0}, own_frame_s=0.3, shared_frame_s=0.0,
+                         prepare_s=0.0, frames_total_s=1.0, error_s=0.0, error_frames=1, error_renders=0,
+                         timing_budget_s=None, frames=3, warmup=1, other_s=None, images=3)
+    local = prior.local([sample] * cost.MIN_LOCAL_ROWS)
+    assert local.method_scale("m") == pytest.approx(3.0)
+    assert local.method_scale("other") == pytest.approx(3.0)   # the machine's overall ratio
+    assert prior.method_scale("m") == 1.0                       # the prior itself is unchanged
+
+
+# ---------------------------------------------------------------------------- the plan
+def test_plan_prints_and_renders_nothing(monkeypatch, capsys, tmp_path, fixed_costs):
+    import bench.cli as cli
+    import bench.run.execute
+
+    def no_render(*a, **k):
+        raise AssertionError("--plan rendered a row")
+    monkeypatch.setattr(bench.run.execute, "render_outcome", no_render)
+    monkeypatch.setattr(bench.run.serial, "render_outcome", no_render)
+    out = tmp_path / "run"
+    code = cli.main(["run", "--plan", "--scenes", "cornell_spot", "--methods", "direct,ssdo", "--res", "32x24",
+                     "--no-reference", "--out", str(out)])
+    assert code == 0
+    text = capsys.readouterr().out
+    assert "cornell_spot/main" in text and "ssdo" in text and "predicted:" in text and "total" in text
+    assert not out.exists()
+
+
+def test_budget_keeps_defaults_then_ladder_ends_then_middles(tmp_path, fixed_costs):
+    # direct opens the view (SHARED_S + ROW_S), ssdo's defaults follow (ROW_S): 900 s; then the ends
+    # of ssdo's 5-rung ladder, a second visit of the view (SHARED_S again): the first fits (1500 s),
+    # the last does not, nor do the middles
+    plan = serial.plan_only(small_config(tmp_path, budget_s=1550.0))
+    kept = [(r.job.method, r.job.params) for r in plan.rows if r.status == "render"]
+    ssdo = load_method("ssdo")
+    assert kept == [("direct", {}), ("ssdo", dict(ssdo.ladder[0])), ("ssdo", {})]
+    over = [r for r in plan.rows if r.status == "over budget"]
+    assert {tuple(sorted(r.job.params.items())) for r in over} == \
+        {tuple(sorted(dict(rung).items())) for rung in ssdo.ladder if dict(rung) and rung != ssdo.ladder[0]}
+    # the prediction a skipped row names is its own and, for a view's first row of a level, the view's
+    assert all(re.fullmatch(r"over budget \(predicted (301|601) s\)", r.reason) for r in over), [r.reason for r in over]
+    assert plan.total() == pytest.approx(2 * SHARED_S + 3 * ROW_S, abs=0.1)
+    order = [(j.method, j.params) for j in plan.ordered_jobs()]   # the order the run takes them
+    assert order[:3] == [("direct", {}), ("ssdo", {}), ("ssdo", dict(ssdo.ladder[0]))]
+    assert "over budget" in plan.table()
+
+
+def test_budget_run_records_the_rows_it_skips_and_the_plan(tmp_path, fixed_costs):
+    from bench.protocol import results as store
+    cfg = small_config(tmp_path, budget_s=1000.0)
+    df, runner = serial.run(cfg, log=lambda m: None)
+    status = {(r["method"], r["params"]): r["status"] for r in df.to_dict("records")}
+    rendered = [k for k, v in status.items() if v == "ok"]
+    assert sorted(m for m, _ in rendered) == ["direct", "ssdo"]          # the two defaults
+    skipped = [v for v in status.values() if v != "ok"]
+    assert len(skipped) == len(load_method("ssdo").ladder) - 1
+    assert all(re.fullmatch(r"skipped: over budget \(predicted (301|601) s\)", v) for v in skipped), skipped
+    manifest = json.loads((cfg.out / "manifest.json").read_text())
+    assert manifest["plan"]["budget_s"] == 1000.0
+    assert manifest["plan"]["predicted_total_s"] == pytest.approx(SHARED_S + 2 * ROW_S, abs=0.1)
+    pva = manifest["phases_predicted_vs_actual"]
+    assert pva["timing"]["predicted_s"] == pytest.approx(SHARED_S + 2 * ROW_S, abs=0.1)
+    assert pva["total"]["actual_s"] > 0
+    assert store.load_results(cfg.out).shape[0] == len(status)
+    from reports import build_report   # the report shows each phase measured beside its prediction
+    html = build_report(cfg.out, tmp_path / "report").read_text()
+    assert "as the cost plan predicted it" in html and re.search(r"\(predicted 900\.\d s\)", html) and "budget</dt>" in html
+
+
+def test_no_row_starts_once_the_budget_is_spent(tmp_path, monkeypatch):
+    """With every row predicted free, the runner still stops starting rows when the clock passes the budget."""
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    model = cost.CostModel(setup=cost.Linear(), metrics_s_per_pixel=0.0)
+    monkeypatch.setattr(cost.CostModel, "prior", classmethod(lambda cls: model))
+    monkeypatch.setattr(cost.CostModel, "local", lambda self, *a, **k: self)
+    monkeypatch.setattr(cost, "record_history", lambda entry: None)
+    account = serial.Runner._account_row
+
+    def spend_after_first_row(self, row, seconds):
+        account(self, row, seconds)
+        self.started -= 10_000.0        # as if the first row had taken the whole budget
+    monkeypatch.setattr(serial.Runner, "_account_row", spend_after_first_row)
+    df, _ = serial.run(small_config(tmp_path, budget_s=600.0), log=lambda m: None)
+    statuses = df["status"].tolist()
+    assert statuses[0] == "ok"
+    assert all(s.startswith("skipped: over budget: the budget was spent") for s in statuses[1:]), statuses
+
+
+def test_history_feeds_the_next_plan(tmp_path, monkeypatch):
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    cost.record_history({"setup_s": 3.0, "triangles": 1000, "metrics_s_per_pixel": 2e-6})
+    cost.record_history({"setup_s": 5.0, "triangles": 3000, "metrics_s_per_pixel": 4e-6})
+    local = cost.CostModel.prior().local([], [], cost.read_history())
+    assert local.setup({"triangles": 2000}) == pytest.approx(4.0, rel=1e-3)   # 2 s + 1 ms per thousand triangles
+    assert local.metrics_s_per_pixel == pytest.approx(3e-6)
+
+
+# ---------------------------------------------------------------------------- quick is a budget
+def test_quick_is_a_five_minute_budget_over_the_default_corpus(monkeypatch):
+    from bench.cli import options
+    from tests.conftest import cli_run_config
+    cfg = cli_run_config(monkeypatch, ["run", "--quick"])
+    assert cfg.budget_s == options.QUICK_BUDGET_S == 300.0
+    assert list(cfg.scenes) == list(options.DEFAULT_SCENES) and cfg.ladders
+    assert cli_run_config(monkeypatch, ["run", "--quick", "--budget", "2m"]).budget_s == 120.0
+    assert cli_run_config(monkeypatch, ["run"]).budget_s is None
+    assert cli_run_config(monkeypatch, ["run", "--quick", "--budget", "none"]).budget_s is None
