@@ -158,6 +158,16 @@ def test_budget_keeps_defaults_then_ladder_ends_then_middles(tmp_path, fixed_cos
     assert "over budget" in plan.table()
 
 
+def test_a_param_grid_has_its_first_set_as_defaults(tmp_path, fixed_costs):
+    """A method run over a --param grid (no `{}` set) keeps its first set at the defaults' priority."""
+    cfg = small_config(tmp_path, methods=["direct", "ssdo"], budget_s=901.0,
+                       params={"ssdo": [{"sample_count": 8}, {"sample_count": 16}, {"sample_count": 64}]})
+    plan = serial.plan_only(cfg)
+    kept = [(r.job.method, r.job.params) for r in plan.rows if r.status == "render"]
+    assert kept == [("direct", {}), ("ssdo", {"sample_count": 8})]
+    assert [r.priority for r in plan.rows] == [0, 0, 2, 1]   # direct; the grid: first, middle, last
+
+
 def test_budget_run_records_the_rows_it_skips_and_the_plan(tmp_path, fixed_costs):
     from bench.protocol import results as store
     cfg = small_config(tmp_path, budget_s=1000.0)

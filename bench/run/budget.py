@@ -167,9 +167,10 @@ def fmt_duration(seconds: float) -> str:
     return f"{int(seconds // 60)}m{seconds % 60:04.1f}s" if seconds >= 60 else f"{seconds:.1f}s"
 
 
-def rung_priority(cls, params: dict, cfg: RunConfig, index: int, count: int) -> int:
-    """0: a method's defaults (or its only set), 1: the ends of its ladder or grid, 2: the middles."""
-    if count <= 1 or not params:
+def rung_priority(params: dict, index: int, count: int, has_defaults: bool) -> int:
+    """0: a method's defaults (its `{}` rung, or the first set of a --param grid without one, or its
+    only set), 1: the ends of its ladder or grid, 2: the middles."""
+    if count <= 1 or not params or (not has_defaults and index == 0):
         return 0
     return 1 if index in (0, count - 1) else 2
 
@@ -183,8 +184,11 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
         model = cost.CostModel.prior().local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history())
     rows_cache = RowCache(log=lambda m: None)
     counts: dict = {}
+    defaults: set = set()   # (scene, view, method) with a `{}` set among its rows
     for job in jobs:
         counts[(job.scene, job.view, job.method)] = counts.get((job.scene, job.view, job.method), 0) + 1
+        if not job.params:
+            defaults.add((job.scene, job.view, job.method))
     planned = []
     views_needed: dict = {}
     for job in jobs:
@@ -198,7 +202,8 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
         except Exception as exc:   # the run records it as a failed row; it costs nothing
             planned.append(PlannedRow(job, 0, "guard", {}, f"fails to load ({' '.join(str(exc).split())[:80]})"))
             continue
-        priority = rung_priority(cls, job.params, cfg, job.index, counts[(job.scene, job.view, job.method)])
+        where = (job.scene, job.view, job.method)
+        priority = rung_priority(job.params, job.index, counts[where], where in defaults)
         judged = cfg.references
         metrics_s = model.metrics_s_per_pixel * size.pixels if judged else 0.0
         key = row_cache_key(scene, job.view, job.method, version, params, cfg, renderer, clock)
