@@ -53,8 +53,23 @@ Complete example (`scenes/examples/two_quads.toml`)::
     up = [0, 1, 0]                     # optional (+Y)
     fov_y_deg = 50                     # optional (45): the VERTICAL field of view
 
+    [animation]                        # optional: the scene in motion (bench.model.animation)
+    frames = 24                        # frames of the sequence (>= 2); keys interpolate linearly
+    [[animation.light]]
+    index = 0                          # the [[light]] table, 0 = the first
+    keys = [{frame = 0, position = [0.3, 1.5, 0.5]}, {frame = 23, position = [-0.3, 1.5, 0.5]}]
+    [[animation.camera]]
+    name = "main"                      # eye, target, fov_y_deg
+    keys = [{frame = 0, eye = [0, 1, 3]}, {frame = 23, eye = [1, 1, 3], fov_y_deg = 40}]
+    [[animation.mesh]]
+    index = 1                          # the [[mesh]] table: translate, rotate_deg, scale about its centre
+    keys = [{frame = 0, translate = [0, 0, 0]}, {frame = 23, translate = [0, 0.5, 0]}]
+
 Transform order: scale, then rotate, then translate (p' = R S p + t). Normals follow the
 inverse transpose; a mirroring scale flips the winding so faces keep their orientation.
+
+`load_scene_file` gives the scene at rest (its [animation] checked), `load_sequence_file` the
+Sequence: the static scene of each frame and what changed between frames.
 
 Albedo (linear RGB diffuse reflectance, per triangle), first match wins: the mesh's `albedo`;
 its `[mesh.materials]` entry; the material's diffuse colour in the file, i.e. the *float* MTL
@@ -91,7 +106,9 @@ from bench.model.scene import (MAX_MAGNITUDE, Camera, DirectionalLight, PointLig
                                check_path_name, check_scene_name)
 
 # ---------------------------------------------------------------------------- TOML schema
-_TOP_KEYS = ("name", "purpose", "default_albedo", "allow_meshes_outside", "mesh", "light", "camera")
+_TOP_KEYS = ("name", "purpose", "default_albedo", "allow_meshes_outside", "mesh", "light", "camera", "animation")
+_ANIMATION_KEYS = ("frames", "camera", "light", "mesh")
+_TRACK_TARGET = {"camera": "name", "light": "index", "mesh": "index"}   # what a track of each kind names
 _MESH_KEYS = ("file", "translate", "rotate_deg", "scale", "albedo", "materials", "exclude_materials",
               "crease_angle_deg", "file_normals")
 _LIGHT_KEYS = {
@@ -269,8 +286,61 @@ def _parse_camera(ctx: _Ctx, name: str, table) -> Camera:
 
 
 def load_scene_file(path) -> Scene:
-    """Read a TOML scene file (format in the module docstring) and return a validated Scene."""
-    path = Path(path)
+    """Read a TOML scene file (format in the module docstring) and return a validated Scene (with an
+    [animation] table: the scene at rest, the animation checked)."""
+    scene, animation = _read(Path(path))
+    if animation is not None:
+        _sequence(Path(path), scene, *animation)   # a bad animation is an error of the file whatever reads it
+    return scene
+
+
+def load_sequence_file(path):
+    """Read a TOML scene file with an [animation] table: a bench.model.animation.Sequence."""
+    scene, animation = _read(Path(path))
+    if animation is None:
+        raise SceneError(f"scene file '{path}': no [animation] table (a static scene: load it with load_scene_file)")
+    return _sequence(Path(path), scene, *animation)
+
+
+def _sequence(path: Path, scene: Scene, doc_animation: dict, mesh_vertices: list):
+    """The Sequence an [animation] table describes (format in the module docstring)."""
+    from bench.model.animation import Sequence
+    ctx, where = _Ctx(path), "[animation]"
+    anim = ctx.table(doc_animation, "animation", "top level")
+    ctx.keys(anim, _ANIMATION_KEYS, where)
+    frames = ctx.require(anim, "frames", where)
+    if isinstance(frames, bool) or not isinstance(frames, int) or frames < 2:
+        raise ctx.error(where, f"'frames' must be an integer >= 2, got {frames!r}")
+    tracks, groups = [], {}
+    for kind, target_key in _TRACK_TARGET.items():
+        for i, table in enumerate(ctx.table_list(anim.get(kind, []), kind, where)):
+            here = f"[[animation.{kind}]] #{i + 1}"
+            ctx.keys(table, (target_key, "keys"), here)
+            target = ctx.require(table, target_key, here)
+            if kind == "camera":
+                target = ctx.string(target, target_key, here)
+            elif isinstance(target, bool) or not isinstance(target, int):
+                raise ctx.error(here, f"'{target_key}' must be an integer (0 = the first [[{kind}]] table), got {target!r}")
+            if kind == "mesh":
+                if not 0 <= target < len(mesh_vertices):
+                    raise ctx.error(here, f"'index' {target} names no [[mesh]] table (0 .. {len(mesh_vertices) - 1})")
+                groups[f"mesh{target}"] = mesh_vertices[target]
+                target = f"mesh{target}"
+            keys = {}
+            for key in ctx.table_list(ctx.require(table, "keys", here), "keys", here):
+                frame = key.get("frame")
+                if frame in keys:
+                    raise ctx.error(here, f"two keys at frame {frame}")
+                keys[frame] = {k: v for k, v in key.items() if k != "frame"}
+            tracks.append((kind, target, [(f, v) for f, v in keys.items()]))
+    try:
+        return Sequence.build(scene.name, scene, frames, tracks, groups, purpose=scene.purpose)
+    except SceneError as exc:
+        raise SceneError(f"scene file '{path}': {exc}") from None
+
+
+def _read(path: Path) -> tuple:
+    """(the Scene, None or (its [animation] table, the vertex indices of each [[mesh]]))."""
     ctx = _Ctx(path)
     try:
         with open(path, "rb") as fh:
@@ -320,20 +390,23 @@ def load_scene_file(path) -> Scene:
     base = path.parent
     verts, norms, faces, albedo = [], [], [], []
     offset = dropped_duplicates = 0
+    mesh_vertices: list = []   # each [[mesh]]'s vertices: an [animation] moves them as one group
     for i, table in enumerate(meshes):
         mesh, tri_albedo = _parse_mesh(ctx, base, i, table, default_albedo, allow_outside)
         verts.append(mesh.vertices)
         norms.append(mesh.normals)
         faces.append(mesh.faces + offset)
         albedo.append(tri_albedo)
+        mesh_vertices.append(np.arange(offset, offset + len(mesh.vertices), dtype=np.int64))
         offset += len(mesh.vertices)
         dropped_duplicates += mesh.dropped_duplicates
     source = f"scene file {path}"
     if dropped_duplicates:
         source += f" ({dropped_duplicates} duplicate triangles dropped)"
     try:
-        return Scene.build(name, np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo),
-                           parsed_lights, parsed_cameras, normals=np.concatenate(norms),
-                           purpose=purpose, source=source)
+        scene = Scene.build(name, np.concatenate(verts), np.concatenate(faces), np.concatenate(albedo),
+                            parsed_lights, parsed_cameras, normals=np.concatenate(norms),
+                            purpose=purpose, source=source)
     except SceneError as exc:
         raise SceneError(f"scene file '{path}': {exc}") from None
+    return scene, ((doc["animation"], mesh_vertices) if "animation" in doc else None)
