@@ -49,6 +49,7 @@ TIMING_BUDGET_RANGE_S = (0.0, 3600.0)  # 0: exactly --frames frames
 WORKERS_RANGE = (1, 256)
 ERROR_FRAMES_RANGE = (1, 64)           # bench.run.config.ERROR_FRAMES_RANGE; 1: no error frames
 BUDGET_RANGE_S = (1.0, 7 * 86400.0)    # bench.run.config.BUDGET_RANGE_S
+SEQUENCE_FRAMES_RANGE = (2, 1000)      # bench.run.config.SEQUENCE_FRAMES_RANGE
 CASE_TIMEOUT_RANGE_S = (0.0, 86400.0)  # stress --timeout, above 0
 FUZZ_EXAMPLES_RANGE = (1, 1_000_000)
 
@@ -87,6 +88,17 @@ def int_in(low: int, high: int, what: str = ""):
         return value
     parse.bounds = f"an integer in [{low}, {high}]"
     return parse
+
+
+def sequence_list(text: str) -> list[str]:
+    """An argparse `type=`: corpus sequence names, comma-separated (`all`: every one)."""
+    from bench.model.corpus.sequences import SEQUENCES
+    if text.strip() == "all":
+        return list(SEQUENCES)
+    return name_list("sequence", choices=tuple(SEQUENCES))(text)
+
+
+sequence_list.bounds = "corpus sequence names (gibench list sequences) or all"
 
 
 def duration(text: str) -> float:

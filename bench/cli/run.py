@@ -36,6 +36,12 @@ def add_parser(sub) -> None:
                    help="the run's time budget (90s, 10m, 1h30m; none: no budget): the rows that fit it by the cost plan, every "
                         "method's defaults first, then the ends of the ladders, then their middles; the others "
                         "are recorded as skipped (over budget), and no row starts once the budget is spent")
+    p.add_argument("--sequences", type=options.sequence_list, default=None,
+                   help="scenes in motion to run after the scenes (comma-separated; `gibench list sequences`): "
+                        "each method follows each frame in order, judged against a reference per frame "
+                        "(without --scenes, only the sequences run)")
+    p.add_argument("--sequence-frames", type=options.int_in(*options.SEQUENCE_FRAMES_RANGE), default=8, metavar="N",
+                   help="frames of each sequence (default 8)")
     p.add_argument("--plan", action="store_true",
                    help="print the cost plan (rows by scene and method, predicted time per phase, what is "
                         "skipped and why) and stop: nothing is rendered, no run folder is made")
@@ -53,7 +59,8 @@ def main(args) -> int:
     width, height = args.res
     params = options.param_sets(args.param)
     options.distinct_param_sets(params)
-    scenes = args.scenes or list(options.DEFAULT_SCENES)
+    sequences = list(args.sequences or [])
+    scenes = args.scenes or ([] if sequences else list(options.DEFAULT_SCENES))
     budget = args.timing_budget if args.timing_budget is not None else (0.3 if args.quick else 1.0)
     run_budget = args.budget if args.budget is not None else (options.QUICK_BUDGET_S if args.quick else None)
     run_budget = None if run_budget == math.inf else run_budget   # --budget none
@@ -66,7 +73,8 @@ def main(args) -> int:
                     timing_budget_s=budget if budget > 0 else None, scheduler=args.scheduler, workers=args.workers,
                     shadow_resolution=args.shadow_resolution,
                     error_frames=args.error_frames if args.error_frames is not None else
-                    (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES), budget_s=run_budget)
+                    (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES), budget_s=run_budget,
+                    sequences=sequences, sequence_frames=args.sequence_frames)
     if args.plan:
         print(serial.plan_only(cfg).table())
         return 0

@@ -141,6 +141,19 @@ class MethodBase:
         (bench.run.harness). False unless a method says so."""
         return False
 
+    # Kinds of motion ("camera", "light", "geometry") this method cannot follow, with why: a
+    # sequence that moves one of them skips its row with that reason (bench.run.sequence).
+    cannot_follow: ClassVar[dict] = {}
+
+    def update(self, gpu, scene, facts, params: dict, view, changes: frozenset) -> None:
+        """Follow a scene in motion: `changes` ({"camera", "light", "geometry"}) moved since the last
+        frame, and `gpu`, `scene`, `facts`, `view` are the new frame's. Called inside the frame's
+        clock (its cost is the frame's). The default keeps nothing: release and prepare again, the
+        honest cost of a method that precomputes for one state; a method that can do less (or keeps
+        temporal state across frames) overrides it."""
+        self.release()
+        self.prepare(gpu, scene, facts, params, view)
+
     @classmethod
     def cost_terms(cls, params: dict, size) -> dict | None:
         """What a frame and the preparation of this method cost scales with, beyond the pixels and

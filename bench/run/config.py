@@ -13,6 +13,7 @@ from bench.run.harness import TimingBudget
 
 ERROR_FRAMES_RANGE = (1, 64)   # RunConfig.error_frames, `--error-frames`
 BUDGET_RANGE_S = (1.0, 7 * 86400.0)   # RunConfig.budget_s, `--budget`
+SEQUENCE_FRAMES_RANGE = (2, 1000)     # RunConfig.sequence_frames, `--sequence-frames`
 
 
 def cache_root() -> Path:
@@ -43,6 +44,8 @@ class RunConfig:
     workers: int | None = None                      # or a LocalCluster of this many worker processes
     error_frames: int = 8                           # untimed frames of a fresh instance per row (bias, variance, flicker); 1: none
     budget_s: float | None = None                   # the run's time budget: rows that do not fit are skipped (bench.run.budget)
+    sequences: list = field(default_factory=list)   # corpus sequences (scenes in motion), rendered after the scenes
+    sequence_frames: int = 8                        # frames of each sequence
 
     def validate(self) -> None:
         for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
@@ -54,8 +57,10 @@ class RunConfig:
             raise ValueError(f"timing budget {self.timing_budget_s} s outside [0, 3600]")
         if self.budget_s is not None and not (0.0 < float(self.budget_s) <= BUDGET_RANGE_S[1]):
             raise ValueError(f"budget {self.budget_s} s outside (0, {BUDGET_RANGE_S[1]:.0f}]")
-        if not self.scenes:
+        if not self.scenes and not self.sequences:
             raise ValueError("no scene given")
+        if not SEQUENCE_FRAMES_RANGE[0] <= int(self.sequence_frames) <= SEQUENCE_FRAMES_RANGE[1]:
+            raise ValueError(f"sequence_frames={self.sequence_frames} outside {list(SEQUENCE_FRAMES_RANGE)}")
         if not self.methods:
             raise ValueError("no method given")
         if int(self.reference_spp_cap) < 2:

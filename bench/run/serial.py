@@ -52,6 +52,7 @@ from bench import gl
 from bench.analysis.summary import write_summary
 from bench.gl.profiler import default_clock
 from bench.model.corpus import load_scene
+from bench.model.corpus.sequences import load_sequence
 from bench.model.imageio import write_exr
 from bench.model.scene import Scene, compute_facts
 from bench.protocol import results as store
@@ -65,6 +66,7 @@ from bench.run.execute import SharedPassCache, render_outcome
 from bench.run.manifest import record_phases, write_manifest
 from bench.run.references import ReferenceProvider
 from bench.run.row_cache import RowCache, row_cache_key, row_image_names
+from bench.run.sequence_rows import run_sequence_rows, sequence_jobs
 
 
 class Runner:
@@ -81,6 +83,7 @@ class Runner:
         # bad input (a parameter, a scene, a scene file, a camera) is found before the run folder is created
         self.resolved = validate_params(cfg)
         self.scenes, self.scene_refs = load_scenes(cfg)   # scene_refs: what a worker loads each from
+        self.sequences = {name: load_sequence(name, cfg.sequence_frames) for name in cfg.sequences}
         self.jobs = plan.make_jobs(cfg, self.scenes)
         self.run_dir = Path(cfg.out) if cfg.out else plan.default_run_dir()
         plan.prepare_run_dir(self.run_dir)
@@ -102,7 +105,8 @@ class Runner:
         self.shared_summary: dict = {}  # "scene/view" -> variant -> measurement summary (manifest)
         # wall seconds per phase of the run (the manifest records them)
         self.phases = {"setup": time.perf_counter() - t_setup, "scene_upload": 0.0, "precompute": 0.0, "timing": 0.0,
-                       "error_frames": 0.0, "rows_other": 0.0, "references": 0.0, "metrics": 0.0}
+                       "error_frames": 0.0, "rows_other": 0.0, "references": 0.0, "metrics": 0.0,
+                       "sequences": 0.0}
 
     def _job_identity(self, scene, job) -> tuple:
         """(row identity, image dir) of a job, as the row will record them."""
@@ -113,6 +117,20 @@ class Runner:
         if (job.method, job.index) in self.resolved:
             folder = plan.image_folder(job.method, params, load_method(job.method))
         return row_identity(row), str(Path("images") / scene.name / job.view / folder)
+
+    def _sequence_identities(self) -> list:
+        """(row identity, image dir) of the sequence rows this run produces (the merge replaces them)."""
+        out = []
+        for name, view, method, index, pset in sequence_jobs(self.cfg, self.sequences):
+            params = self.resolved.get((method, index), pset)
+            row = {"scene": name, "view": view, "method": method, "params": store.params_json(params),
+                   "seed": self.cfg.seed, "width": self.cfg.width, "height": self.cfg.height}
+            try:
+                folder = plan.image_folder(method, params, load_method(method))
+            except Exception:
+                folder = method
+            out.append((row_identity(row), str(Path("images") / name / view / folder)))
+        return out
 
     def save(self) -> None:
         store.save_results(self.run_dir, self.kept + self.rows)
@@ -150,13 +168,14 @@ class Runner:
             plan.point_latest(self.run_dir)
         renderer = ctx.info.get("GL_RENDERER", "")
         existing = self.existing
-        self.kept = plan.merge_existing(self.run_dir, existing, [self._job_identity(scenes[j.scene], j) for j in jobs])
+        self.kept = plan.merge_existing(self.run_dir, existing, [self._job_identity(scenes[j.scene], j) for j in jobs]
+                                        + self._sequence_identities())
         if self.kept:
             self.log(f"gibench: {self.run_dir}: keeping {len(self.kept)} row(s) of earlier runs "
                      f"(other methods, resolutions or parameters)")
         invocation = plan.invocation_hash(cfg, scenes)
         resumable = self.state.resumable(existing, invocation, cfg.force)
-        self.state.start(invocation, len(jobs))
+        self.state.start(invocation, len(jobs) + len(sequence_jobs(cfg, self.sequences)))
 
         progress = tqdm(total=len(jobs), unit="row", dynamic_ncols=True, file=sys.stderr) if cfg.progress else None
         references = ReferenceProvider(self.run_dir, cfg, self.log) if cfg.references else None
@@ -166,6 +185,8 @@ class Runner:
                 cluster.run_rows(self, ctx, scenes, jobs, renderer, resumable, references, progress)
             else:
                 self._run_serial(ctx, scenes, facts, jobs, renderer, resumable, references, progress)
+            self._release_gpu()
+            run_sequence_rows(self, ctx, renderer)   # scenes in motion, judged frame by frame as they render
         finally:
             if progress is not None:
                 progress.close()

@@ -1,0 +1,170 @@
+"""A run's sequence rows (issue #25): each method at each parameter set follows each sequence of
+the run (`RunConfig.sequences`) through each of its cameras, and is judged frame by frame against
+a Mitsuba reference of that frame.
+
+One row per (sequence, view, method, parameter set), after the static rows. Rendering is
+bench.run.sequence.run_sequence; then, per frame t, the references of the frame's static scene
+(content-addressed: a frame equal to a static scene shares its references, a re-run renders
+none; capped at the run's reference spp, no refinement pass) and the row's error columns for that
+frame (bench.analysis.evaluation.evaluate_row). The row holds:
+  * the error columns averaged over the frames (`relmse.indirect` ...) and their worst frame
+    (`worst.relmse.indirect` ...);
+  * `frame_ms`: the median frame of the frames after the first (the frames that follow motion;
+    frame 0 starts cold), `frame_ms_worst`, `update_ms` and `update_ms_worst` (what redoing the
+    motion's work took inside those frames), `upload_ms` (the engine's uploads, not the
+    method's), `prepare_ms`;
+  * `sequence` (its name) and `extra.sequence_frames`.
+Per-frame values go to `frames.csv` in the row's image folder beside the images of every frame
+(`frame_NNN_{direct,indirect,combined}.exr`); the last frame's images and references are also
+written under the usual names, so the report shows a sequence like a view (its last frame).
+A method that fails or cannot follow the motion becomes a failed or skipped row; the run goes on.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from bench.analysis.evaluation import evaluate_row
+from bench.model.imageio import write_exr
+from bench.protocol import results as store
+from bench.protocol.method import SkipRow
+from bench.protocol.registry import load_method
+from bench.protocol.versioning import method_version
+from bench.protocol.vocabulary import IMAGE_COMPONENTS, REFERENCE_COMPONENTS, Status, failure_reason
+from bench.run.config import RunConfig, cache_root, effective_shadow_resolution, expand_param_sets
+from bench.run.plan import image_folder
+from bench.run.sequence import run_sequence
+from reference.api import ReferenceUnavailable, get_reference
+
+
+def sequence_key(sequence, view: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str) -> str:
+    """Everything a sequence row's images depend on: every frame's scene content among them."""
+    payload = {"frames": [sequence.frame(t).content_hash() for t in range(sequence.frames)], "view": view,
+               "method": method, "version": version, "params": params, "width": cfg.width, "height": cfg.height,
+               "seed": cfg.seed, "shadow_resolution": effective_shadow_resolution(cfg), "renderer": renderer}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+class SequenceReferences:
+    """Per-frame references of a run's sequences, fetched once per (sequence, view, frame)."""
+
+    def __init__(self, run_dir: Path, cfg: RunConfig, log):
+        self.run_dir, self.cfg, self.log = run_dir, cfg, log
+        self.held: dict = {}
+        self.unavailable: str | None = None
+        self.seconds = 0.0
+
+    def frame(self, sequence, view: str, t: int) -> dict:
+        key = (sequence.name, view, t)
+        if key in self.held:
+            return self.held[key]
+        refs = {}
+        if self.unavailable is None:
+            t0 = time.perf_counter()
+            scene = sequence.frame(t)
+            for c in REFERENCE_COMPONENTS:
+                try:
+                    refs[c] = get_reference(scene, view, self.cfg.width, self.cfg.height, c,
+                                            spp_cap=max(int(self.cfg.reference_spp_cap), 2))
+                except ReferenceUnavailable as exc:
+                    self.unavailable = str(exc)
+                    self.log(f"gibench: {exc}; sequence error columns left empty")
+                    refs = {}
+                    break
+            self.seconds += time.perf_counter() - t0
+            out = self.run_dir / "references" / sequence.name / view
+            for c, ref in refs.items():
+                write_exr(out / f"frame_{t:03d}_{c}.exr", ref.mean)
+                if t == sequence.frames - 1:   # the report shows a sequence as its last frame
+                    write_exr(out / f"{c}.exr", ref.mean)
+                    write_exr(out / f"{c}_variance.exr", ref.variance)
+        self.held[key] = refs
+        return refs
+
+
+def sequence_jobs(cfg: RunConfig, sequences: dict) -> list:
+    """(sequence name, view, method, parameter set index, parameter set) of every sequence row."""
+    jobs = []
+    for name, seq in sequences.items():
+        for view in cfg.views or sorted(seq.base.cameras):
+            if view not in seq.base.cameras:
+                continue
+            for method in cfg.methods:
+                for index, pset in enumerate(expand_param_sets(cfg, method)):
+                    jobs.append((name, view, method, index, pset))
+    return jobs
+
+
+def run_sequence_rows(runner, ctx, renderer: str) -> None:
+    """Render, judge and record every sequence row of `runner`'s run (bench.run.serial.Runner)."""
+    cfg = runner.cfg
+    if not runner.sequences:
+        return
+    t_start = time.perf_counter()
+    references = SequenceReferences(runner.run_dir, cfg, runner.log) if cfg.references else None
+    memo = cache_root() / "metrics"
+    for name, view, method, index, pset in sequence_jobs(cfg, runner.sequences):
+        seq = runner.sequences[name]
+        row = {"scene": name, "sequence": name, "view": view, "method": method, "params": store.params_json(pset),
+               "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": seq.frames, "warmup": 0}
+        try:
+            cls = load_method(method)
+            params = runner.resolved.get((method, index)) or pset
+            row["params"] = store.params_json(params)
+            row["method_version"] = version = method_version(cls)
+            row["row_key"] = sequence_key(seq, view, method, version, params, cfg, renderer)
+            folder = Path("images") / name / view / image_folder(method, params, cls)
+            row["image_dir"] = str(folder)
+            result = run_sequence(ctx, cls, seq, view, cfg.width, cfg.height, params, seed=cfg.seed,
+                                  shadow_resolution=effective_shadow_resolution(cfg))
+        except SkipRow as exc:
+            row["status"] = Status.skipped(str(exc))
+            runner.counts["skipped"] += 1
+        except Exception as exc:   # a failing method never loses the others' rows
+            ctx.error
+            row["status"] = Status.failed(failure_reason(exc))
+            runner.counts["failed"] += 1
+            runner.log(f"gibench: sequence {name}/{view}/{method} failed: {failure_reason(exc)}")
+        else:
+            row.update(_record(runner.run_dir / folder, seq, view, result, references, memo))
+            row["status"] = Status.OK
+            runner.counts["ok"] += 1
+        runner.rows.append(row)
+        runner.record(row)
+    runner.phases["sequences"] = runner.phases.get("sequences", 0.0) + time.perf_counter() - t_start
+
+
+def _record(image_dir: Path, seq, view: str, result, references, memo) -> dict:
+    """Write a rendered sequence row's images and per-frame table; its columns."""
+    per_frame = []
+    for f, (direct, indirect) in zip(result.frames, result.images):
+        images = {"direct": direct, "indirect": indirect, "combined": direct + indirect}
+        for comp in IMAGE_COMPONENTS:
+            write_exr(image_dir / f"frame_{f.t:03d}_{comp}.exr", images[comp])
+            if f.t == seq.frames - 1:
+                write_exr(image_dir / f"{comp}.exr", images[comp])
+        values = {"t": f.t, "changes": "+".join(f.changes), "frame_ms": f.frame_ms, "update_ms": f.update_ms,
+                  "upload_ms": f.upload_ms}
+        refs = references.frame(seq, view, f.t) if references is not None else {}
+        if refs:
+            values.update(evaluate_row(images, {c: r.mean for c, r in refs.items()}, memo))
+        per_frame.append(values)
+    table = pd.DataFrame(per_frame)
+    table.to_csv(image_dir / "frames.csv", index=False)
+    moving = table[table["t"] > 0]
+    out = {"frame_ms": float(moving["frame_ms"].median()), "frame_ms_worst": float(moving["frame_ms"].max()),
+           "frame_ms_first": float(table["frame_ms"].iloc[0]),
+           "update_ms": float(moving["update_ms"].median()), "update_ms_worst": float(moving["update_ms"].max()),
+           "upload_ms": float(table["upload_ms"].sum()), "prepare_ms": result.prepare_ms,
+           "stage_clock": result.stage_clock, "extra.sequence_frames": seq.frames,
+           "samples.frame_ms": json.dumps([round(v, 4) for v in moving["frame_ms"]])}
+    for column in table.columns:
+        if "." in column and np.issubdtype(table[column].dtype, np.number):   # the error columns
+            out[column] = float(table[column].mean())
+            out[f"worst.{column}"] = float(table[column].max())
+    return out

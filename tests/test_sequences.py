@@ -1,0 +1,114 @@
+"""Scenes in motion, rendered (issue #25): a method follows a sequence frame by frame, redoing the
+work a motion invalidates inside the frame's clock; sequence rows of a run are judged against a
+reference per frame."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from bench.model.animation import Sequence
+from bench.model.corpus.sequences import load_sequence
+from bench.protocol.method import SkipRow
+from bench.protocol.registry import load_method
+from bench.run.harness import run_method
+from bench.run.sequence import run_sequence
+from tests.conftest import make_open_box
+
+W, H = 40, 24
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("method", ["direct", "ir_unshadowed", "ssdo", "val_clustered"])
+def test_frame_zero_of_a_sequence_is_the_static_image(gl_ctx, method):
+    """Frame 0 is the scene at rest, seen by a fresh instance: the static row's image, bit for bit."""
+    seq = load_sequence("cornell_spot_moving_block", frames=2)
+    cls = load_method(method)
+    moving = run_sequence(gl_ctx, cls, seq, "main", W, H, {}, shadow_resolution=256)
+    static = run_method(gl_ctx, cls, seq.frame(0), "main", W, H, {}, shadow_resolution=256, frames=1)
+    assert np.array_equal(moving.images[0][0], static.direct) and np.array_equal(moving.images[0][1], static.indirect)
+    combined = [d + i for d, i in moving.images]
+    assert not np.array_equal(combined[1], combined[0])   # the block moved: another image
+    assert [f.changes for f in moving.frames] == [("camera", "geometry", "light"), ("geometry",)]
+
+
+class CountingDirect(load_method("direct")):
+    """`direct` that counts its preparations and makes each update cost at least 30 ms."""
+    name = "counting_direct"
+    prepared = 0
+
+    def prepare(self, gpu, scene, facts, params, view):
+        type(self).prepared += 1
+        super().prepare(gpu, scene, facts, params, view)
+
+    def update(self, gpu, scene, facts, params, view, changes):
+        time.sleep(0.03)
+        super().update(gpu, scene, facts, params, view, changes)
+
+
+@pytest.mark.gl
+def test_motion_work_is_redone_inside_the_frame_clock_and_only_when_something_moved(gl_ctx):
+    box = make_open_box()
+    # the light moves over frames 0-2, then rests: frames 3 and 4 change nothing
+    seq = Sequence.build("sweep", box, 5, [("light", 0, {0: {"position": [0.2, 1.2, 0.1]}, 2: {"position": [-0.4, 1.2, 0.3]}})])
+    CountingDirect.prepared = 0
+    result = run_sequence(gl_ctx, CountingDirect, seq, "main", W, H, {}, shadow_resolution=256)
+    assert CountingDirect.prepared == 3                       # frame 0, then the frames the light moved in
+    assert [f.changes for f in result.frames][1:] == [("light",), ("light",), (), ()]
+    moved, rested = result.frames[1:3], result.frames[3:]
+    assert all(f.update_ms >= 30.0 and f.frame_ms >= f.update_ms for f in moved)
+    assert all(f.update_ms == 0.0 for f in rested)
+    assert np.array_equal(result.images[3][0], result.images[4][0])   # at rest: the same image
+
+
+class NoGeometry(load_method("direct")):
+    name = "no_geometry"
+    cannot_follow = {"geometry": "its light cuts are built once for fixed geometry"}
+
+
+@pytest.mark.gl
+def test_a_method_that_cannot_follow_a_motion_is_skipped_with_its_reason(gl_ctx):
+    with pytest.raises(SkipRow, match="cannot follow geometry motion: its light cuts are built once"):
+        run_sequence(gl_ctx, NoGeometry, load_sequence("cornell_spot_moving_block", frames=2), "main", W, H)
+    run_sequence(gl_ctx, NoGeometry, load_sequence("rooms_light_sweep", frames=2), "main", W, H)   # light: it follows
+
+
+@pytest.mark.gl
+@pytest.mark.mitsuba
+def test_sequence_rows_of_a_run(tmp_path, monkeypatch):
+    """`gibench run --sequences`: a row per method with the errors averaged over the frames and their
+    worst frame, the frame times of the moving frames, per-frame values and images beside it; a re-run
+    renders no reference again."""
+    from bench.cli import main
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    out = tmp_path / "run"
+    argv = ["run", "--sequences", "rooms_light_sweep", "--sequence-frames", "3", "--views", "main",
+            "--methods", "direct,ir_unshadowed", "--defaults-only", "--res", f"{W}x{H}", "--reference-spp", "8",
+            "--no-progress", "--out", str(out)]
+    assert main(argv) == 0
+    rows = pd.read_csv(out / "results.csv")
+    assert list(rows["method"]) == ["direct", "ir_unshadowed"] and set(rows["status"]) == {"ok"}
+    assert set(rows["sequence"]) == {"rooms_light_sweep"} and set(rows["extra.sequence_frames"]) == {3}
+    for _, row in rows.iterrows():
+        frames = pd.read_csv(out / row["image_dir"] / "frames.csv")
+        assert list(frames["t"]) == [0, 1, 2] and list(frames["changes"])[1:] == ["light", "light"]
+        assert row["relmse.indirect"] == pytest.approx(frames["relmse.indirect"].mean())
+        assert row["worst.relmse.indirect"] == pytest.approx(frames["relmse.indirect"].max())
+        assert row["frame_ms"] == pytest.approx(frames["frame_ms"].iloc[1:].median())
+        assert (out / row["image_dir"] / "frame_002_indirect.exr").is_file()
+    # ir_unshadowed bounces light, direct has none: the indirect error says so in every frame
+    assert rows.set_index("method").loc["ir_unshadowed", "worst.relmse.indirect"] < \
+        rows.set_index("method").loc["direct", "relmse.indirect"]
+    cached = sorted(p.name for p in (tmp_path / "cache" / "references").glob("*/*"))
+    assert len(cached) == 3 * 3                                       # three components of three frames
+    assert main(argv + ["--force"]) == 0
+    assert sorted(p.name for p in (tmp_path / "cache" / "references").glob("*/*")) == cached
+
+
+def test_unknown_sequence_is_bad_input(capsys):
+    from bench.cli import main
+    with pytest.raises(SystemExit) as exit_:
+        main(["run", "--sequences", "moon_walk"])
+    assert exit_.value.code == 2 and "unknown sequence 'moon_walk'" in capsys.readouterr().err
