@@ -37,7 +37,7 @@ from bench.protocol import results as store
 from bench.analysis.curves import declared_defaults, load_curves, pareto_table, sweep_table
 from bench.protocol.results import load_manifest, run_progress
 
-from . import comparisons, plots, tables
+from . import comparisons, plots, sequences, tables
 from .render import write_page
 from .stress import STRESS_TABLE, build_stress_report
 from .viewdata import view_data, write_view_script
@@ -48,6 +48,7 @@ __all__ = ["build_report"]
 KEEP_COLUMNS = ("image_dir", "skipped_stages", "samples.stage_ms", "width", "height", "stage_ms.", "reference_",
                 "extra.error_frames")
 TOC = (("overview", "Time and error"), ("decomposition", "Bias and variance"), ("scenes", "Scenes"),
+       ("sequences", "Sequences"),
        ("timing", "Stages"), ("speedup", "Speed-up"), ("scaling", "Scaling"), ("between", "Between methods"),
        ("papers", "Papers"), ("scene-facts", "Scene facts"), ("references", "References"), ("metrics", "Metrics"),
        ("run", "Run"))
@@ -129,6 +130,7 @@ def build_report(run_dir, out_dir=None) -> Path:
     overview = tables.overview(table, views, manifest.get("scene_facts"))
     scene_views, timing, speedups = _views(run_dir, out_dir, table, views, curves, manifest)
     scaling = _scaling(table, manifest, out_dir)
+    sequence_blocks = sequences.sequence_blocks(run_dir, out_dir, df)
     metric_docs = tables.metric_docs(overview["metrics"])
     decomposition = any(v["bias_variance"] for v in scene_views) or overview["flicker"] is not None
     machine = manifest.get("machine", {})
@@ -139,7 +141,8 @@ def build_report(run_dir, out_dir=None) -> Path:
                      "commit": str(manifest.get("git_commit") or "?")[:12],
                      "incomplete": progress.describe()},
         "toc": [(a, t) for a, t in TOC if (metric_docs or a != "metrics") and (scaling or a != "scaling")
-                and (decomposition or a != "decomposition")],
+                and (decomposition or a != "decomposition") and (sequence_blocks or a != "sequences")],
+        "sequences": sequence_blocks,
         "overview": overview, "not_rendered": tables.not_rendered(df), "decomposition": decomposition,
         "scene_views": scene_views, "timing": timing, "speedup": speedups, "scaling": scaling,
         "between": comparisons.between_methods(table, out_dir),

@@ -101,6 +101,12 @@ def test_sequence_rows_of_a_run(tmp_path, monkeypatch):
     # ir_unshadowed bounces light, direct has none: the indirect error says so in every frame
     assert rows.set_index("method").loc["ir_unshadowed", "worst.relmse.indirect"] < \
         rows.set_index("method").loc["direct", "relmse.indirect"]
+    from reports import build_report   # the report's sequences: plots over frames and a filmstrip per view
+    html = build_report(out, tmp_path / "report").read_text()
+    assert "<h2 id='sequences'>" in html and "rooms_light_sweep/main: error over frames" in html
+    assert (tmp_path / "report" / "plots" / "sequence_time_0.svg").is_file()
+    strip = sorted(p.name for p in (tmp_path / "report" / "data" / "sequence_0").glob("*.png"))
+    assert strip == sorted([f"{who}_{t:03d}.png" for who in ("reference", "direct", "ir_unshadowed") for t in range(3)])
     cached = sorted(p.name for p in (tmp_path / "cache" / "references").glob("*/*"))
     assert len(cached) == 3 * 3                                       # three components of three frames
     assert main(argv + ["--force"]) == 0
