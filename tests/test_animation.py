@@ -30,7 +30,7 @@ def test_a_field_missing_from_a_key_comes_from_the_keys_that_have_it():
 
 @pytest.mark.parametrize("name", list(SEQUENCES))
 def test_corpus_sequences_start_at_their_static_scene_and_differ_every_frame(name):
-    seq = load_sequence(name, frames=4)
+    seq = load_sequence(name, frames=4, rest=0)
     static = load_scene(SEQUENCES[name].scene)
     assert seq.frame(0).content_hash() == static.content_hash()   # frame 0 shares the static scene's references
     hashes = [seq.frame(t).content_hash() for t in range(seq.frames)]
@@ -43,7 +43,7 @@ def test_corpus_sequences_start_at_their_static_scene_and_differ_every_frame(nam
 def test_a_frame_is_the_static_scene_built_from_its_state():
     """rooms_light_sweep at frame t is exactly `rooms` with the light where the track puts it: the
     same content, hence the same cache key, as a static scene a user would write for that frame."""
-    seq = load_sequence("rooms_light_sweep", frames=5)
+    seq = load_sequence("rooms_light_sweep", frames=5, rest=0)
     static = load_scene("rooms")
     for t in range(seq.frames):
         position = seq.tracks[0].value("position", t)
@@ -54,7 +54,7 @@ def test_a_frame_is_the_static_scene_built_from_its_state():
 
 
 def test_a_moving_mesh_moves_rigidly_and_nothing_else_moves():
-    seq = load_sequence("cornell_spot_moving_block", frames=3)
+    seq = load_sequence("cornell_spot_moving_block", frames=3, rest=0)
     block = seq.groups["short_block"]
     first, last = seq.frame(0), seq.frame(2)
     assert np.allclose(last.vertices[block] - first.vertices[block], [-0.7, 0.0, 0.0])
@@ -98,7 +98,7 @@ def test_bad_sequences_are_one_line_errors(frames, tracks, groups, message):
 def test_unknown_sequence_and_frame_out_of_range():
     with pytest.raises(SceneError, match="unknown sequence 'nope'; known: rooms_light_sweep"):
         load_sequence("nope")
-    seq = load_sequence("rooms_light_sweep", frames=3)
+    seq = load_sequence("rooms_light_sweep", frames=3, rest=0)
     with pytest.raises(SceneError, match=r"frame 3 outside \[0, 2\]"):
         seq.frame(3)
 
@@ -119,7 +119,7 @@ def test_a_frames_reference_is_the_static_scenes(tmp_path):
     """The reference of a sequence frame and of the same state written as a static scene are one
     cache entry, and rendering them apart (two caches) gives the same image."""
     from reference.api import get_reference
-    seq = load_sequence("rooms_light_sweep", frames=3)
+    seq = load_sequence("rooms_light_sweep", frames=3, rest=0)
     static = load_scene("rooms")
     light = PointLight(seq.tracks[0].value("position", 2), static.lights[0].intensity)
     by_hand = Scene.build(static.name, static.vertices, static.faces, static.albedo, [light], static.cameras,
@@ -182,3 +182,9 @@ def test_frame_zero_is_the_base_scene_unless_keyed_there():
     assert seq.frame(4).cameras["main"].fov_y_deg == pytest.approx(40.0)
     assert seq.frame(8).cameras["main"].fov_y_deg == pytest.approx(30.0)
     assert seq.changes(1) == {"camera"}
+
+
+def test_corpus_sequences_rest_after_their_motion():
+    seq = load_sequence("rooms_light_sweep", frames=3, rest=2)
+    assert seq.frames == 5 and [sorted(seq.changes(t)) for t in range(1, 5)] == [["light"], ["light"], [], []]
+    assert seq.frame(4).content_hash() == seq.frame(2).content_hash()   # at rest: one reference for the rest

@@ -24,7 +24,7 @@ W, H = 40, 24
 @pytest.mark.parametrize("method", ["direct", "ir_unshadowed", "ssdo", "val_clustered"])
 def test_frame_zero_of_a_sequence_is_the_static_image(gl_ctx, method):
     """Frame 0 is the scene at rest, seen by a fresh instance: the static row's image, bit for bit."""
-    seq = load_sequence("cornell_spot_moving_block", frames=2)
+    seq = load_sequence("cornell_spot_moving_block", frames=2, rest=0)
     cls = load_method(method)
     moving = run_sequence(gl_ctx, cls, seq, "main", W, H, {}, shadow_resolution=256)
     static = run_method(gl_ctx, cls, seq.frame(0), "main", W, H, {}, shadow_resolution=256, frames=1)
@@ -71,8 +71,8 @@ class NoGeometry(load_method("direct")):
 @pytest.mark.gl
 def test_a_method_that_cannot_follow_a_motion_is_skipped_with_its_reason(gl_ctx):
     with pytest.raises(SkipRow, match="cannot follow geometry motion: its light cuts are built once"):
-        run_sequence(gl_ctx, NoGeometry, load_sequence("cornell_spot_moving_block", frames=2), "main", W, H)
-    run_sequence(gl_ctx, NoGeometry, load_sequence("rooms_light_sweep", frames=2), "main", W, H)   # light: it follows
+        run_sequence(gl_ctx, NoGeometry, load_sequence("cornell_spot_moving_block", frames=2, rest=0), "main", W, H)
+    run_sequence(gl_ctx, NoGeometry, load_sequence("rooms_light_sweep", frames=2, rest=0), "main", W, H)   # light: it follows
 
 
 @pytest.mark.gl
@@ -84,7 +84,7 @@ def test_sequence_rows_of_a_run(tmp_path, monkeypatch):
     from bench.cli import main
     monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
     out = tmp_path / "run"
-    argv = ["run", "--sequences", "rooms_light_sweep", "--sequence-frames", "3", "--views", "main",
+    argv = ["run", "--sequences", "rooms_light_sweep", "--sequence-frames", "3", "--sequence-rest", "0", "--views", "main",
             "--methods", "direct,ir_unshadowed", "--defaults-only", "--res", f"{W}x{H}", "--reference-spp", "8",
             "--no-progress", "--out", str(out)]
     assert main(argv) == 0
@@ -118,3 +118,44 @@ def test_unknown_sequence_is_bad_input(capsys):
     with pytest.raises(SystemExit) as exit_:
         main(["run", "--sequences", "moon_walk"])
     assert exit_.value.code == 2 and "unknown sequence 'moon_walk'" in capsys.readouterr().err
+
+
+def test_lag_counts_frames_after_the_motion_until_the_error_is_back():
+    from bench.run.sequence_rows import lag_after
+    errors = np.array([0.1, 0.5, 0.9, 0.6, 0.3, 0.105, 0.1])   # the motion ends at frame 2
+    assert lag_after(errors, 2, 0.1) == 3                      # frame 5 is within 10% of 0.1
+    assert lag_after(errors, 2, 0.9) == 0                      # a method that keeps nothing is back at once
+    assert lag_after(errors, 2, 0.01) is None                  # not back by the end
+
+
+class LaggingDirect(load_method("direct")):
+    """`direct` that follows a moving light two frames late: it shows the image of two frames ago
+    and keeps its history through updates (a method that reuses earlier frames)."""
+    name = "lagging_direct"
+
+    def prepare(self, gpu, scene, facts, params, view):
+        super().prepare(gpu, scene, facts, params, view)
+        self.history = []
+
+    def update(self, gpu, scene, facts, params, view, changes):
+        history = self.history
+        super().update(gpu, scene, facts, params, view, changes)
+        self.history = history
+
+    def render(self, frame, prof):
+        from bench.gl import read_rgb
+        out = super().render(frame, prof)
+        self.history.append(read_rgb(out.direct).copy())
+        return type(out)(direct=self.history[max(0, len(self.history) - 3)], indirect=None)
+
+
+@pytest.mark.gl
+def test_a_method_that_keeps_state_shows_the_past_after_the_motion(gl_ctx):
+    box = make_open_box()
+    seq = Sequence.build("sweep", box, 6, [("light", 0, {0: {"position": [0.2, 1.2, 0.1]}, 2: {"position": [-0.4, 1.2, 0.3]}})])
+    lagging = run_sequence(gl_ctx, LaggingDirect, seq, "main", W, H, {}, shadow_resolution=256)
+    prompt = run_sequence(gl_ctx, load_method("direct"), seq, "main", W, H, {}, shadow_resolution=256)
+    shown = [d for d, _ in lagging.images]
+    truth = [d for d, _ in prompt.images]
+    assert np.array_equal(shown[2], truth[0]) and not np.array_equal(shown[2], truth[2])   # two frames late
+    assert np.array_equal(shown[4], truth[2]) and np.array_equal(shown[5], truth[5])      # caught up at rest

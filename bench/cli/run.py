@@ -41,7 +41,10 @@ def add_parser(sub) -> None:
                         "each method follows each frame in order, judged against a reference per frame "
                         "(without --scenes, only the sequences run)")
     p.add_argument("--sequence-frames", type=options.int_in(*options.SEQUENCE_FRAMES_RANGE), default=8, metavar="N",
-                   help="frames of each sequence (default 8)")
+                   help="frames of motion of each sequence (default 8)")
+    p.add_argument("--sequence-rest", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=8, metavar="N",
+                   help="frames at rest after the motion, over which a method that reuses earlier frames catches "
+                        "up: its lag_frames (default 8)")
     p.add_argument("--plan", action="store_true",
                    help="print the cost plan (rows by scene and method, predicted time per phase, what is "
                         "skipped and why) and stop: nothing is rendered, no run folder is made")
@@ -74,7 +77,7 @@ def main(args) -> int:
                     shadow_resolution=args.shadow_resolution,
                     error_frames=args.error_frames if args.error_frames is not None else
                     (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES), budget_s=run_budget,
-                    sequences=sequences, sequence_frames=args.sequence_frames)
+                    sequences=sequences, sequence_frames=args.sequence_frames, sequence_rest=args.sequence_rest)
     if args.plan:
         print(serial.plan_only(cfg).table())
         return 0

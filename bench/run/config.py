@@ -45,7 +45,8 @@ class RunConfig:
     error_frames: int = 8                           # untimed frames of a fresh instance per row (bias, variance, flicker); 1: none
     budget_s: float | None = None                   # the run's time budget: rows that do not fit are skipped (bench.run.budget)
     sequences: list = field(default_factory=list)   # corpus sequences (scenes in motion), rendered after the scenes
-    sequence_frames: int = 8                        # frames of each sequence
+    sequence_frames: int = 8                        # frames of motion of each sequence
+    sequence_rest: int = 8                          # then frames at rest (a reusing method's lag)
 
     def validate(self) -> None:
         for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
@@ -61,6 +62,8 @@ class RunConfig:
             raise ValueError("no scene given")
         if not SEQUENCE_FRAMES_RANGE[0] <= int(self.sequence_frames) <= SEQUENCE_FRAMES_RANGE[1]:
             raise ValueError(f"sequence_frames={self.sequence_frames} outside {list(SEQUENCE_FRAMES_RANGE)}")
+        if not 0 <= int(self.sequence_rest) <= SEQUENCE_FRAMES_RANGE[1]:
+            raise ValueError(f"sequence_rest={self.sequence_rest} outside [0, {SEQUENCE_FRAMES_RANGE[1]}]")
         if not self.methods:
             raise ValueError("no method given")
         if int(self.reference_spp_cap) < 2:

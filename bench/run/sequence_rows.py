@@ -9,11 +9,14 @@ none; capped at the run's reference spp, no refinement pass) and the row's error
 frame (bench.analysis.evaluation.evaluate_row). The row holds:
   * the error columns averaged over the frames (`relmse.indirect` ...) and their worst frame
     (`worst.relmse.indirect` ...);
-  * `frame_ms`: the median frame of the frames after the first (the frames that follow motion;
-    frame 0 starts cold), `frame_ms_worst`, `update_ms` and `update_ms_worst` (what redoing the
-    motion's work took inside those frames), `upload_ms` (the engine's uploads, not the
-    method's), `prepare_ms`;
-  * `sequence` (its name) and `extra.sequence_frames`.
+  * `frame_ms`: the median frame of the frames after the first (frame 0 starts cold),
+    `frame_ms_worst`, `update_ms` and `update_ms_worst` (what redoing the motion's work took inside
+    the frames something moved in), `upload_ms` (the engine's uploads, not the method's),
+    `prepare_ms`;
+  * `sequence` (its name) and `extra.sequence_frames`;
+  * with frames at rest after the motion, `lag_frames`: the frames after the last motion until the
+    error is back within 10% of the method's static level on the final state (`static.relmse.
+    indirect`: a fresh instance starting there), NaN if not by the end (`lag_frames_at_least`).
 Per-frame values go to `frames.csv` in the row's image folder beside the images of every frame
 (`frame_NNN_{direct,indirect,combined}.exr`); the last frame's images and references are also
 written under the usual names, so the report shows a sequence like a view (its last frame).
@@ -38,6 +41,7 @@ from bench.protocol.versioning import method_version
 from bench.protocol.vocabulary import IMAGE_COMPONENTS, REFERENCE_COMPONENTS, Status, failure_reason
 from bench.run.config import RunConfig, cache_root, effective_shadow_resolution, expand_param_sets
 from bench.run.plan import image_folder
+from bench.run.harness import run_method
 from bench.run.sequence import run_sequence
 from reference.api import ReferenceUnavailable, get_reference
 
@@ -118,7 +122,7 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
             row["params"] = store.params_json(params)
             row["method_version"] = version = method_version(cls)
             row["row_key"] = sequence_key(seq, view, method, version, params, cfg, renderer)
-            folder = Path("images") / name / view / image_folder(method, params, cls)
+            folder = _row_dir(seq, view, method, cls, params)
             row["image_dir"] = str(folder)
             result = run_sequence(ctx, cls, seq, view, cfg.width, cfg.height, params, seed=cfg.seed,
                                   shadow_resolution=effective_shadow_resolution(cfg))
@@ -132,11 +136,61 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
             runner.log(f"gibench: sequence {name}/{view}/{method} failed: {failure_reason(exc)}")
         else:
             row.update(_record(runner.run_dir / folder, seq, view, result, references, memo))
+            if references is not None and "relmse.indirect" in row:
+                row.update(_lag(ctx, method, cls, seq, view, params, cfg, references, memo))
             row["status"] = Status.OK
             runner.counts["ok"] += 1
         runner.rows.append(row)
         runner.record(row)
     runner.phases["sequences"] = runner.phases.get("sequences", 0.0) + time.perf_counter() - t_start
+
+
+LAG_TOLERANCE = 0.10   # lag_frames: back within 10% of the static level
+LAG_COLUMN = "relmse.indirect"
+
+
+def last_change(seq) -> int:
+    """The last frame in which something moved (0: nothing after the first frame)."""
+    moved = [t for t in range(1, seq.frames) if seq.changes(t)]
+    return moved[-1] if moved else 0
+
+
+def _lag(ctx, method: str, cls, seq, view: str, params: dict, cfg: RunConfig, references, memo) -> dict:
+    """`lag_frames`: after the motion's last frame, the frames until the row's error is back within
+    LAG_TOLERANCE of its static level, the error of a fresh instance that starts at the final state
+    (a static row of the last frame); NaN when it is not back by the end (`lag_frames_at_least`
+    then says how many frames at rest it was not). Needs frames at rest."""
+    end = last_change(seq)
+    if end >= seq.frames - 1:
+        return {}
+    last = seq.frames - 1
+    refs = references.frame(seq, view, last)
+    if not refs:
+        return {}
+    static = run_method(ctx, cls, seq.frame(last), view, cfg.width, cfg.height, params, seed=cfg.seed, warmup=1,
+                        frames=1, shadow_resolution=effective_shadow_resolution(cfg))
+    images = {"direct": static.direct, "indirect": static.indirect, "combined": static.direct + static.indirect}
+    level = evaluate_row(images, {c: r.mean for c, r in refs.items()}, memo).get(LAG_COLUMN)
+    out = {f"static.{LAG_COLUMN}": level}
+    errors = pd.read_csv(references.run_dir / _row_dir(seq, view, method, cls, params) / "frames.csv")[LAG_COLUMN]
+    lag = lag_after(errors.to_numpy(dtype=np.float64), end, level)
+    out["lag_frames"] = float("nan") if lag is None else float(lag)
+    if lag is None:
+        out["lag_frames_at_least"] = float(last - end + 1)
+    return out
+
+
+def lag_after(errors: np.ndarray, end: int, level: float, tolerance: float = LAG_TOLERANCE) -> int | None:
+    """Frames after frame `end` (the motion's last) until `errors` is within `tolerance` of `level`
+    (0: already at `end`), None if never by the last frame."""
+    for t in range(end, len(errors)):
+        if errors[t] <= (1.0 + tolerance) * level + 1e-12:
+            return t - end
+    return None
+
+
+def _row_dir(seq, view: str, method: str, cls, params: dict) -> Path:
+    return Path("images") / seq.name / view / image_folder(method, params, cls)
 
 
 def _record(image_dir: Path, seq, view: str, result, references, memo) -> dict:
@@ -156,10 +210,12 @@ def _record(image_dir: Path, seq, view: str, result, references, memo) -> dict:
         per_frame.append(values)
     table = pd.DataFrame(per_frame)
     table.to_csv(image_dir / "frames.csv", index=False)
-    moving = table[table["t"] > 0]
+    moving = table[table["t"] > 0]                              # every frame after the cold first one
+    moved = table[(table["t"] > 0) & (table["changes"].fillna("") != "")]   # the frames something moved in
     out = {"frame_ms": float(moving["frame_ms"].median()), "frame_ms_worst": float(moving["frame_ms"].max()),
            "frame_ms_first": float(table["frame_ms"].iloc[0]),
-           "update_ms": float(moving["update_ms"].median()), "update_ms_worst": float(moving["update_ms"].max()),
+           "update_ms": float(moved["update_ms"].median()) if len(moved) else 0.0,
+           "update_ms_worst": float(moved["update_ms"].max()) if len(moved) else 0.0,
            "upload_ms": float(table["upload_ms"].sum()), "prepare_ms": result.prepare_ms,
            "stage_clock": result.stage_clock, "extra.sequence_frames": seq.frames,
            "samples.frame_ms": json.dumps([round(v, 4) for v in moving["frame_ms"]])}

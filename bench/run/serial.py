@@ -83,7 +83,7 @@ class Runner:
         # bad input (a parameter, a scene, a scene file, a camera) is found before the run folder is created
         self.resolved = validate_params(cfg)
         self.scenes, self.scene_refs = load_scenes(cfg)   # scene_refs: what a worker loads each from
-        self.sequences = {name: load_sequence(name, cfg.sequence_frames) for name in cfg.sequences}
+        self.sequences = {name: load_sequence(name, cfg.sequence_frames, cfg.sequence_rest) for name in cfg.sequences}
         self.jobs = plan.make_jobs(cfg, self.scenes)
         self.run_dir = Path(cfg.out) if cfg.out else plan.default_run_dir()
         plan.prepare_run_dir(self.run_dir)

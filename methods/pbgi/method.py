@@ -505,6 +505,17 @@ class TextureSpacePBGI(MethodBase):
             self.parity = 1 - self.parity   # the window is complete: display it
         self.steps += 1
 
+    def update(self, gpu, scene, facts, params, view, changes) -> None:
+        """A scene in motion (bench.run.sequence): moved geometry invalidates the unwrap and the
+        texture-space G-buffer, so it prepares again (the article re-renders them where an object
+        moves; here the whole scene, as the charts are packed together). A moved light or camera
+        invalidates nothing it keeps: every frame relights the texels from the frame's own shadow
+        maps and resolves through the frame's own G-buffer, so the amortised gather goes on, and the
+        displayed window catches up with the new light over the next windows (the lag the article's
+        amortisation costs)."""
+        if "geometry" in changes:
+            super().update(gpu, scene, facts, params, view, changes)
+
     def render(self, frame, prof) -> FrameOutput:
         ctx, gpu, passes = self.ctx, frame.gpu, frame.passes
         # An empty history (the first frame) runs the whole accumulation, `bounces` windows (bounce

@@ -4,9 +4,10 @@
     sponza_camera_walk         the camera of `sponza` walks 24 m down the atrium
     cornell_spot_moving_block  the short block of `cornell_spot` slides 0.7 m across the floor
 
-Each is `bench.model.animation.Sequence` over its corpus scene at default options, FRAMES frames
-by default (`load_sequence(name, frames=N)`): the keys are at the first and last frame (and the
-light's at the door), so a longer sequence is the same motion sampled finer.
+Each is `bench.model.animation.Sequence` over its corpus scene at default options: FRAMES frames
+of motion (`load_sequence(name, frames=N)`: the keys are at the first and last of them, and the
+light's at the door, so more frames sample the same motion finer), then REST frames at rest
+(`rest=R`), over which a method that reuses earlier frames catches up (its `lag_frames`).
 """
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ import numpy as np
 from bench.model.animation import Sequence
 from bench.model.scene import SceneError
 
-FRAMES = 8
+FRAMES = 8   # frames of motion
+REST = 8     # then frames at rest
 
 
 @dataclass(frozen=True)
@@ -70,21 +72,24 @@ SEQUENCES: dict = {e.name: e for e in (
 )}
 
 
-def load_sequence(name: str, frames: int = FRAMES) -> Sequence:
-    """A corpus sequence by name."""
+def load_sequence(name: str, frames: int = FRAMES, rest: int = REST) -> Sequence:
+    """A corpus sequence by name: `frames` frames of motion, then `rest` frames at rest."""
     from bench.model.corpus import load_scene
     entry = SEQUENCES.get(str(name))
     if entry is None:
         raise SceneError(f"unknown sequence '{name}'; known: {', '.join(SEQUENCES)}")
     if isinstance(frames, bool) or not isinstance(frames, (int, np.integer)) or frames < 2:
         raise SceneError(f"sequence '{name}': frames must be an integer >= 2, got {frames!r}")
+    if isinstance(rest, bool) or not isinstance(rest, (int, np.integer)) or rest < 0:
+        raise SceneError(f"sequence '{name}': rest must be an integer >= 0, got {rest!r}")
     base = load_scene(entry.scene)
     groups = entry.groups() if entry.groups else {}
-    return Sequence.build(name, base, int(frames), entry.tracks(int(frames)), groups, purpose=entry.purpose)
+    return Sequence.build(name, base, int(frames) + int(rest), entry.tracks(int(frames)), groups,
+                          purpose=entry.purpose)
 
 
 def sequence_names() -> list:
     return list(SEQUENCES)
 
 
-__all__ = ["FRAMES", "SEQUENCES", "SequenceEntry", "load_sequence", "sequence_names"]
+__all__ = ["FRAMES", "REST", "SEQUENCES", "SequenceEntry", "load_sequence", "sequence_names"]
