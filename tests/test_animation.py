@@ -188,3 +188,51 @@ def test_corpus_sequences_rest_after_their_motion():
     seq = load_sequence("rooms_light_sweep", frames=3, rest=2)
     assert seq.frames == 5 and [sorted(seq.changes(t)) for t in range(1, 5)] == [["light"], ["light"], [], []]
     assert seq.frame(4).content_hash() == seq.frame(2).content_hash()   # at rest: one reference for the rest
+
+
+# ---------------------------------------------------------------------------- properties
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+finite = st.floats(-50.0, 50.0, allow_nan=False, allow_infinity=False)
+vec = st.tuples(finite, finite, finite)
+
+
+@st.composite
+def light_tracks(draw):
+    frames = draw(st.integers(2, 30))
+    count = draw(st.integers(1, min(frames, 5)))
+    key_frames = sorted(draw(st.sets(st.integers(0, frames - 1), min_size=count, max_size=count)))
+    keys = {k: {"position": list(draw(vec))} for k in key_frames}
+    return frames, keys
+
+
+@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(light_tracks())
+def test_interpolation_stays_between_its_keys_and_hits_them(track):
+    frames, keys = track
+    t = make_track("p", "light", 0, keys, frames)
+    points = np.array([v["position"] for v in keys.values()])
+    for f in range(frames):
+        v = t.value("position", f)
+        assert np.all(v >= points.min(0) - 1e-9) and np.all(v <= points.max(0) + 1e-9)   # never overshoots
+    for k, v in keys.items():
+        assert np.allclose(t.value("position", k), v["position"])
+    ks = sorted(keys)
+    for a, b in zip(ks, ks[1:]):   # linear between two keys: equal steps
+        steps = np.diff([t.value("position", f) for f in range(a, b + 1)], axis=0)
+        assert np.allclose(steps, steps[0], atol=1e-9)
+
+
+@settings(max_examples=25, deadline=None)
+@given(vec, st.tuples(st.floats(-180, 180), st.floats(-180, 180), st.floats(-180, 180)))
+def test_a_rigid_mesh_motion_keeps_areas_and_unit_normals(move, turn):
+    box = make_open_box()
+    floor = np.unique(box.faces[:2])
+    seq = Sequence.build("rigid", box, 2, [("mesh", "floor", {1: {"translate": list(move), "rotate_deg": list(turn)}})],
+                         groups={"floor": floor})
+    moved = seq.frame(1)
+    assert np.allclose(moved.areas(), box.areas(), rtol=1e-9, atol=1e-12)
+    assert np.allclose(np.linalg.norm(moved.normals, axis=1), 1.0)
+    assert np.allclose(moved.face_normals()[:2], moved.normals[floor][:1], atol=1e-9)   # normals turn with the faces
+    assert seq.frame(1).content_hash() == moved.content_hash()                          # deterministic

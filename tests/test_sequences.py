@@ -159,3 +159,16 @@ def test_a_method_that_keeps_state_shows_the_past_after_the_motion(gl_ctx):
     truth = [d for d, _ in prompt.images]
     assert np.array_equal(shown[2], truth[0]) and not np.array_equal(shown[2], truth[2])   # two frames late
     assert np.array_equal(shown[4], truth[2]) and np.array_equal(shown[5], truth[5])      # caught up at rest
+
+
+@pytest.mark.gl
+@pytest.mark.parametrize("method", ["direct", "manylights"])
+def test_frame_one_is_a_static_render_at_frame_ones_pose(gl_ctx, method):
+    """A stateless method (its frames identical for a view) shows at frame 1 exactly what a static
+    row of frame 1's scene shows."""
+    cls = load_method(method)
+    assert cls.frames_identical(cls.params and {k: p.default for k, p in cls.params.items()})
+    seq = load_sequence("cornell_spot_moving_block", frames=2, rest=0)
+    moving = run_sequence(gl_ctx, cls, seq, "main", W, H, {}, shadow_resolution=256)
+    static = run_method(gl_ctx, cls, seq.frame(1), "main", W, H, {}, shadow_resolution=256, frames=1)
+    assert np.array_equal(moving.images[1][0], static.direct) and np.array_equal(moving.images[1][1], static.indirect)
