@@ -29,6 +29,8 @@ DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside",
 # every method's defaults first, then the ladders' ends, then their middles: bench.run.budget), a
 # short timing budget, fewer reference samples and error frames
 QUICK_BUDGET_S = 300.0
+# the scenes in motion of the default run (after its scenes, at RunConfig.sequence_width x height)
+DEFAULT_SEQUENCES = ("rooms_light_sweep", "sponza_camera_walk", "cornell_spot_moving_block")
 REFERENCE_SPP = 1024        # reference spp cap of `run` and `sweep`
 QUICK_REFERENCE_SPP = 256   # --quick: a first report; the reference floor shows as wider intervals
 ERROR_FRAMES = 8            # untimed frames per row for bias, variance and flicker (RunConfig.error_frames)
@@ -91,14 +93,16 @@ def int_in(low: int, high: int, what: str = ""):
 
 
 def sequence_list(text: str) -> list[str]:
-    """An argparse `type=`: corpus sequence names, comma-separated (`all`: every one)."""
+    """An argparse `type=`: corpus sequence names, comma-separated (`all`: every one, `none`: none)."""
     from bench.model.corpus.sequences import SEQUENCES
     if text.strip() == "all":
         return list(SEQUENCES)
+    if text.strip() == "none":
+        return []
     return name_list("sequence", choices=tuple(SEQUENCES))(text)
 
 
-sequence_list.bounds = "corpus sequence names (gibench list sequences) or all"
+sequence_list.bounds = "corpus sequence names (gibench list sequences), all or none"
 
 
 def duration(text: str) -> float:

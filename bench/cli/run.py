@@ -37,9 +37,10 @@ def add_parser(sub) -> None:
                         "method's defaults first, then the ends of the ladders, then their middles; the others "
                         "are recorded as skipped (over budget), and no row starts once the budget is spent")
     p.add_argument("--sequences", type=options.sequence_list, default=None,
-                   help="scenes in motion to run after the scenes (comma-separated; `gibench list sequences`): "
-                        "each method follows each frame in order, judged against a reference per frame "
-                        "(without --scenes, only the sequences run)")
+                   help="scenes in motion to run after the scenes (comma-separated, all or none; `gibench list "
+                        "sequences`): each method at its defaults follows each frame in order, judged against a "
+                        "reference per frame (default: " + ",".join(options.DEFAULT_SEQUENCES) + " with the default "
+                        "scenes, none with --scenes; --sequences alone runs only the sequences)")
     p.add_argument("--sequence-frames", type=options.int_in(*options.SEQUENCE_FRAMES_RANGE), default=8, metavar="N",
                    help="frames of motion of each sequence (default 8)")
     p.add_argument("--sequence-rest", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=8, metavar="N",
@@ -62,8 +63,10 @@ def main(args) -> int:
     width, height = args.res
     params = options.param_sets(args.param)
     options.distinct_param_sets(params)
-    sequences = list(args.sequences or [])
-    scenes = args.scenes or ([] if sequences else list(options.DEFAULT_SCENES))
+    # the default run (no --scenes) has the default sequences too; --scenes alone runs those scenes only
+    sequences = list(args.sequences) if args.sequences is not None else \
+        ([] if args.scenes else list(options.DEFAULT_SEQUENCES))
+    scenes = args.scenes or ([] if args.sequences else list(options.DEFAULT_SCENES))
     budget = args.timing_budget if args.timing_budget is not None else (0.3 if args.quick else 1.0)
     run_budget = args.budget if args.budget is not None else (options.QUICK_BUDGET_S if args.quick else None)
     run_budget = None if run_budget == math.inf else run_budget   # --budget none

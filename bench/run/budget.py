@@ -19,16 +19,19 @@ import re
 from dataclasses import dataclass, field
 
 from bench.gl.profiler import default_clock
+from bench.model.scene import compute_facts
 from bench.protocol.cost import CostFacts
 from bench.protocol.method import resolve_params
 from bench.protocol.registry import load_method
 from bench.protocol.versioning import method_version
 from bench.protocol.vocabulary import REFERENCE_COMPONENTS
 from bench.run import cost
-from bench.run.config import RunConfig
+from bench.run.config import RunConfig, sequence_config
+from bench.run.plan import Job
 from bench.run.row_cache import RowCache, row_cache_key, row_image_names
+from bench.run.sequence_rows import last_change, sequence_jobs
 
-ROW_PHASES = ("precompute", "timing", "error_frames", "rows_other", "metrics")
+ROW_PHASES = ("precompute", "timing", "error_frames", "rows_other", "metrics", "sequences")
 PHASES = ("setup", "shared_passes", "references") + ROW_PHASES
 REFERENCE_FIRST_PASS_SPP = 64   # bench.run.references.ReferenceProvider.REFERENCE_FIRST_PASS_SPP
 PRIORITY_NAMES = ("defaults", "ladder ends", "ladder middles")
@@ -103,8 +106,9 @@ class RunPlan:
 
     def job_seconds(self, job) -> float:
         """Predicted seconds of one job's row (0 for a job the plan does not know)."""
+        where = (job.scene, job.view, job.method, job.index)
         for r in self.rows:
-            if r.job == job:
+            if (r.job.scene, r.job.view, r.job.method, r.job.index) == where:
                 return r.total
         return 0.0
 
@@ -176,7 +180,7 @@ def rung_priority(params: dict, index: int, count: int, has_defaults: bool) -> i
 
 
 def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model: cost.CostModel | None = None,
-              resolved: dict | None = None) -> RunPlan:
+              resolved: dict | None = None, sequences: dict | None = None) -> RunPlan:
     """Predict every job of a run (nothing renders; the row and reference caches are only read)."""
     renderer, clock = ctx.info.get("GL_RENDERER", ""), default_clock(ctx)
     if model is None:
@@ -232,10 +236,69 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
     for row in planned:   # a view whose rows are all skipped by their guards costs nothing
         views.setdefault((row.job.scene, row.job.view), {"shared_passes": 0.0, "references": 0.0,
                                                          "references_refinement": 0.0})
+    sequence_rows, sequence_views, sequence_facts = plan_sequences(cfg, sequences or {}, model)
+    planned += sequence_rows
+    views.update(sequence_views)
     metrics_per_row = model.metrics_s_per_pixel * cfg.width * cfg.height if cfg.references else 0.0
-    setup_s = model.setup({"triangles": sum(f.triangle_count for f in facts.values())})
+    setup_s = model.setup({"triangles": sum(f.triangle_count for f in [*facts.values(), *sequence_facts])})
     return RunPlan(rows=planned, views=views, setup_s=setup_s, model=model.provenance,
                    metrics_per_row_s=metrics_per_row)
+
+
+def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel) -> tuple:
+    """(planned rows, views, scene facts) of a run's sequence rows (bench.run.sequence_rows), each
+    predicted whole under the phase `sequences`: its frames (the method's frame and the shared
+    passes, every frame), a preparation at frame 0 and in every frame something moved (the
+    protocol's default update), the static render of `lag_frames`, the harness's part and the
+    metrics of every frame; each sequence view adds the references of its distinct frames (the
+    frames at rest share the last one's)."""
+    scfg = sequence_config(cfg)
+    rows, views, facts_of = [], {}, {}
+    for name, view, method, index, pset in sequence_jobs(cfg, sequences):
+        seq = sequences[name]
+        if name not in facts_of:
+            facts_of[name] = compute_facts(seq.base)
+        size = CostFacts.of(facts_of[name], scfg.width, scfg.height)
+        job = Job(name, view, method, index, pset)
+        try:
+            cls = load_method(method)
+            terms = cost.row_terms(cls, resolve_params(cls, pset), size)
+        except Exception as exc:
+            rows.append(PlannedRow(job, 0, "guard", {}, f"fails to load ({' '.join(str(exc).split())[:80]})"))
+            continue
+        if terms is None:
+            rows.append(PlannedRow(job, 0, "guard", {}, "its method's guard skips it (a declared limit)"))
+            continue
+        one = model.row(method, terms, frames=1, warmup=1, timing_budget_s=None, error_frames=1, renders=0, images=3,
+                        judged=scfg.references)
+        shared = model.method_scale("*") * model.shared({"pixels": size.pixels, "triangles": size.triangles})
+        moved = sum(1 for t in range(1, seq.frames) if seq.changes(t))
+        lag = last_change(seq) < seq.frames - 1 and scfg.references
+        total = (seq.frames * (one["frame"] + shared) + (1 + moved + lag) * one["precompute"] + lag * one["frame"]
+                 + seq.frames * one["rows_other"] + (seq.frames + lag) * one["metrics"])
+        rows.append(PlannedRow(job, 0, "render", {"sequences": total}))
+        if (name, view) not in views:
+            refs = _sequence_reference_seconds(model, scfg, seq, view, size) if scfg.references else 0.0
+            views[(name, view)] = {"shared_passes": 0.0, "references": refs, "references_refinement": 0.0}
+    return rows, views, list(facts_of.values())
+
+
+def _sequence_reference_seconds(model: cost.CostModel, scfg: RunConfig, seq, view: str, size: CostFacts) -> float:
+    """The per-frame references a sequence view still needs: one per distinct frame, at the cap."""
+    try:
+        from reference.api import stored_reference
+    except Exception:
+        return 0.0
+    cap, total = int(scfg.reference_spp_cap), 0.0
+    for t in range(last_change(seq) + 1):
+        scene = seq.frame(t)
+        for c in REFERENCE_COMPONENTS:
+            try:
+                stored = stored_reference(scene, view, scfg.width, scfg.height, c)["spp"]
+            except Exception:   # no Mitsuba: no reference is rendered
+                return 0.0
+            total += model.reference_seconds(seq.base.name, c, size.pixels, cap, stored, cap)
+    return total
 
 
 def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, size: CostFacts) -> tuple:

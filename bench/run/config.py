@@ -47,6 +47,9 @@ class RunConfig:
     sequences: list = field(default_factory=list)   # corpus sequences (scenes in motion), rendered after the scenes
     sequence_frames: int = 8                        # frames of motion of each sequence
     sequence_rest: int = 8                          # then frames at rest (a reusing method's lag)
+    sequence_width: int = 160                       # sequences render (and are referenced) at this size:
+    sequence_height: int = 90                       # a reference per frame costs what a view's does
+    sequence_reference_spp: int = 256               # per-frame references' spp cap (and at most the run's)
 
     def validate(self) -> None:
         for name, value, low, high in (("width", self.width, 8, 8192), ("height", self.height, 8, 8192),
@@ -104,6 +107,20 @@ def effective_shadow_resolution(cfg: RunConfig) -> int:
 def timing_budget(cfg: RunConfig) -> TimingBudget | None:
     """The run's calibrated timing, None for exactly `frames` frames."""
     return None if cfg.timing_budget_s is None else TimingBudget(budget_s=float(cfg.timing_budget_s))
+
+
+def sequence_config(cfg: RunConfig) -> RunConfig:
+    """The settings a run's sequence rows render and are judged at: the sequence size, per-frame
+    references capped at sequence_reference_spp (and at the run's cap)."""
+    import dataclasses
+    return dataclasses.replace(cfg, width=int(cfg.sequence_width), height=int(cfg.sequence_height),
+                               reference_spp_cap=min(int(cfg.reference_spp_cap), int(cfg.sequence_reference_spp)))
+
+
+def sequence_param_sets(cfg: RunConfig, method: str) -> list[dict]:
+    """A method's parameter sets on the sequences: its --param grid, else its defaults alone (motion
+    is measured at the operating point; the ladders are the static views' curves)."""
+    return [dict(s) for s in cfg.params.get(method) or [{}]]
 
 
 def expand_param_sets(cfg: RunConfig, method: str) -> list[dict]:

@@ -35,11 +35,11 @@ import pandas as pd
 from bench.analysis.evaluation import evaluate_row
 from bench.model.imageio import write_exr
 from bench.protocol import results as store
-from bench.protocol.method import SkipRow
+from bench.protocol.method import SkipRow, resolve_params
 from bench.protocol.registry import load_method
 from bench.protocol.versioning import method_version
 from bench.protocol.vocabulary import IMAGE_COMPONENTS, REFERENCE_COMPONENTS, Status, failure_reason
-from bench.run.config import RunConfig, cache_root, effective_shadow_resolution, expand_param_sets
+from bench.run.config import RunConfig, cache_root, effective_shadow_resolution, sequence_config, sequence_param_sets
 from bench.run.plan import image_folder
 from bench.run.harness import run_method
 from bench.run.sequence import run_sequence
@@ -92,21 +92,22 @@ class SequenceReferences:
 
 
 def sequence_jobs(cfg: RunConfig, sequences: dict) -> list:
-    """(sequence name, view, method, parameter set index, parameter set) of every sequence row."""
+    """(sequence name, view, method, parameter set index, parameter set) of every sequence row:
+    each method at its defaults (or its --param grid) on every camera of every sequence."""
     jobs = []
     for name, seq in sequences.items():
         for view in cfg.views or sorted(seq.base.cameras):
             if view not in seq.base.cameras:
                 continue
             for method in cfg.methods:
-                for index, pset in enumerate(expand_param_sets(cfg, method)):
+                for index, pset in enumerate(sequence_param_sets(cfg, method)):
                     jobs.append((name, view, method, index, pset))
     return jobs
 
 
 def run_sequence_rows(runner, ctx, renderer: str) -> None:
     """Render, judge and record every sequence row of `runner`'s run (bench.run.serial.Runner)."""
-    cfg = runner.cfg
+    cfg = sequence_config(runner.cfg)
     if not runner.sequences:
         return
     t_start = time.perf_counter()
@@ -116,9 +117,16 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
         seq = runner.sequences[name]
         row = {"scene": name, "sequence": name, "view": view, "method": method, "params": store.params_json(pset),
                "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": seq.frames, "warmup": 0}
+        skipped = runner.sequence_skip(name, view, method, index)
+        if skipped is not None:   # over the run's budget: planned so, or the budget is spent
+            row["status"] = Status.skipped(skipped)
+            runner.counts["skipped"] += 1
+            runner.rows.append(row)
+            runner.record(row, write=False)
+            continue
         try:
             cls = load_method(method)
-            params = runner.resolved.get((method, index)) or pset
+            params = resolve_params(cls, pset)
             row["params"] = store.params_json(params)
             row["method_version"] = version = method_version(cls)
             row["row_key"] = sequence_key(seq, view, method, version, params, cfg, renderer)
@@ -142,7 +150,9 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
             runner.counts["ok"] += 1
         runner.rows.append(row)
         runner.record(row)
-    runner.phases["sequences"] = runner.phases.get("sequences", 0.0) + time.perf_counter() - t_start
+    ref_s = references.seconds if references is not None else 0.0   # the references are their own phase
+    runner.phases["sequences"] = runner.phases.get("sequences", 0.0) + time.perf_counter() - t_start - ref_s
+    runner.phases["references"] += ref_s
 
 
 LAG_TOLERANCE = 0.10   # lag_frames: back within 10% of the static level

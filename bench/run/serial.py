@@ -122,13 +122,15 @@ class Runner:
         """(row identity, image dir) of the sequence rows this run produces (the merge replaces them)."""
         out = []
         for name, view, method, index, pset in sequence_jobs(self.cfg, self.sequences):
-            params = self.resolved.get((method, index), pset)
-            row = {"scene": name, "view": view, "method": method, "params": store.params_json(params),
-                   "seed": self.cfg.seed, "width": self.cfg.width, "height": self.cfg.height}
+            params, folder = pset, method
             try:
-                folder = plan.image_folder(method, params, load_method(method))
-            except Exception:
-                folder = method
+                cls = load_method(method)
+                params = resolve_params(cls, pset)
+                folder = plan.image_folder(method, params, cls)
+            except Exception:   # the row fails with its reason when it runs
+                pass
+            row = {"scene": name, "view": view, "method": method, "params": store.params_json(params),
+                   "seed": self.cfg.seed, "width": self.cfg.sequence_width, "height": self.cfg.sequence_height}
             out.append((row_identity(row), str(Path("images") / name / view / folder)))
         return out
 
@@ -157,7 +159,7 @@ class Runner:
         t_setup = time.perf_counter()
         ctx = gl.create_context()
         facts = {name: compute_facts(s) for name, s in scenes.items()}
-        self.plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=self.resolved)
+        self.plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=self.resolved, sequences=self.sequences)
         if cfg.budget_s is not None:
             budget.apply_budget(self.plan, cfg.budget_s)
             jobs = self.jobs = self.plan.ordered_jobs()   # defaults first: a short budget cuts the middles
@@ -359,6 +361,22 @@ class Runner:
         return (f"over budget: the budget was spent ({elapsed:.0f} s of {self.cfg.budget_s:.0f} s used, "
                 f"this row predicted {row_s:.0f} s)")
 
+    def sequence_skip(self, name: str, view: str, method: str, index: int) -> str | None:
+        """Why a sequence row is not run under the run's budget (the plan's choice, or the budget
+        spent by now), else None."""
+        if self.cfg.budget_s is None or self.plan is None:
+            return None
+        job = plan.Job(name, view, method, index, {})
+        over = self.plan.skipped_jobs().get((name, view, method, index))
+        if over is not None:
+            return over
+        elapsed = time.perf_counter() - self.started
+        row_s = self.plan.job_seconds(job) + self.plan.views.get((name, view), {}).get("references", 0.0)
+        if elapsed + row_s <= self.cfg.budget_s:
+            return None
+        return (f"over budget: the budget was spent ({elapsed:.0f} s of {self.cfg.budget_s:.0f} s used, "
+                f"this row predicted {row_s:.0f} s)")
+
     def _record_history(self) -> None:
         """This run's predicted and actual phases, for the next plan's local model (bench.run.cost)."""
         judged = [r for r in self.rows if Status.has_images(r.get("status"))]
@@ -476,10 +494,11 @@ def plan_only(cfg: RunConfig) -> budget.RunPlan:
     cfg.validate()
     resolved = validate_params(cfg)
     scenes, _ = load_scenes(cfg)
+    sequences = {name: load_sequence(name, cfg.sequence_frames, cfg.sequence_rest) for name in cfg.sequences}
     jobs = plan.make_jobs(cfg, scenes)
     ctx = gl.create_context()   # the process's context: its renderer and clock are part of a row's cache key
     facts = {name: compute_facts(s) for name, s in scenes.items()}
-    run_plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=resolved)
+    run_plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=resolved, sequences=sequences)
     if cfg.budget_s is not None:
         budget.apply_budget(run_plan, cfg.budget_s)
     return run_plan
