@@ -25,7 +25,8 @@ ACCUMULATED = "mse_accumulated"   # the accumulated curve beside each panel's si
 BIAS_COLOR, VARIANCE_COLOR = "#c44e52", "#4c72b0"
 
 
-def _save(fig, path: Path) -> Path:
+def save_svg(fig, path: Path) -> Path:
+    """Write a figure as a reproducible SVG (no date, fixed id salt)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     with matplotlib.rc_context({"svg.hashsalt": "gibench", "svg.fonttype": "path"}):
         fig.savefig(path, format="svg", metadata={"Date": None})
@@ -103,7 +104,7 @@ def time_error_plot(table: pd.DataFrame, curves: dict, scene: str, view: str, pa
     fig.legend(handles.values(), handles.keys(), loc="outside lower center", ncols=min(4, len(handles)),
                fontsize=7, frameon=False)
     fig.suptitle(f"{scene} / {view}: time vs error", fontsize=10)
-    return _save(fig, path)
+    return save_svg(fig, path)
 
 
 def _frames_text(rows: pd.DataFrame) -> str:
@@ -150,7 +151,7 @@ def bias_variance_plot(split: list[dict], path: Path, title: str) -> Path | None
     ax.grid(True, axis="x", lw=0.3, alpha=0.5)
     fig.suptitle(title, fontsize=10)
     fig.legend(loc="outside lower center", ncols=2, fontsize=7, frameon=False)
-    return _save(fig, path)
+    return save_svg(fig, path)
 
 
 def stage_plot(rows: pd.DataFrame, stages: list[str], path: Path, title: str) -> Path | None:
@@ -178,7 +179,7 @@ def stage_plot(rows: pd.DataFrame, stages: list[str], path: Path, title: str) ->
     fig.suptitle(title, fontsize=10)
     ax.grid(True, axis="x", lw=0.3, alpha=0.5)
     fig.legend(loc="outside lower center", ncols=4, fontsize=7, frameon=False)
-    return _save(fig, path)
+    return save_svg(fig, path)
 
 
 def scaling_fits(table: pd.DataFrame, triangles: dict, series_prefix: str = "highpoly_") -> dict:
@@ -220,4 +221,4 @@ def scaling_plot(fits: dict, path: Path) -> Path | None:
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     ax.legend(fontsize=7, frameon=False)
     fig.suptitle("cost vs triangles (high-poly series, default parameters)", fontsize=10)
-    return _save(fig, path)
+    return save_svg(fig, path)

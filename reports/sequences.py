@@ -12,7 +12,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
 import numpy as np
 import pandas as pd
 from matplotlib.figure import Figure
@@ -21,14 +20,9 @@ from matplotlib.ticker import MaxNLocator
 from bench.analysis.metrics import tonemap, tonemap_scale
 from bench.model.imageio import read_exr
 
+from .plots import save_svg
+
 ERROR_COLUMN = "relmse.indirect"
-
-
-def _save(fig, path: Path) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with matplotlib.rc_context({"svg.hashsalt": "gibench", "svg.fonttype": "path"}):
-        fig.savefig(path, format="svg", metadata={"Date": None})
-    return path
 
 
 def _png(path: Path, linear: np.ndarray, scale: float) -> str:
@@ -66,7 +60,7 @@ def _plot(per_method: dict, column: str, ylabel: str, title: str, path: Path, lo
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
-    return _save(fig, path)
+    return save_svg(fig, path)
 
 
 def sequence_blocks(run_dir: Path, out_dir: Path, results: pd.DataFrame) -> list:

@@ -2,6 +2,8 @@
 changed between frames, the corpus sequences, and the one-line errors of bad sequences."""
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -139,7 +141,7 @@ def test_list_sequences(capsys):
 
 
 # ---------------------------------------------------------------------------- scene files
-EXAMPLE_FILE = __import__("pathlib").Path(__file__).resolve().parents[1] / "scenes" / "examples" / "two_quads.toml"
+EXAMPLE_FILE = Path(__file__).resolve().parents[1] / "scenes" / "examples" / "two_quads.toml"
 
 
 def test_scene_file_animation():

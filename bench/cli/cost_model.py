@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 import platform
 import statistics
 import sys
@@ -32,7 +33,7 @@ def main(args) -> int:
         return 1
     provenance = {"runs": {Path(r).name: len(s) for r, s in samples.items()}, "rows": len(train),
                   "fitted": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%d"),
-                  "machine": f"{platform.machine()}, {__import__('os').cpu_count()} cores",
+                  "machine": f"{platform.machine()}, {os.cpu_count()} cores",
                   "command": "gibench cost-model " + " ".join(Path(r).name for r in args.runs) + " --write"}
     model = cost.CostModel.fit(train, cost.reference_metas(), provenance)
     runs = [cost.run_phases(Path(r)) for r in args.runs]

@@ -25,6 +25,7 @@ from __future__ import annotations
 import datetime as _dt
 import json
 import math
+import os
 import statistics
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -434,7 +435,7 @@ def record_history(entry: dict) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         kept = read_history()[-(HISTORY_KEEP - 1):]
         entry = dict(entry, date=_dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"))
-        tmp = path.with_suffix(f".tmp{__import__('os').getpid()}")
+        tmp = path.with_suffix(f".tmp{os.getpid()}")
         tmp.write_text("".join(json.dumps(e) + "\n" for e in kept + [entry]))
         tmp.replace(path)
     except OSError:
