@@ -111,6 +111,13 @@ def test_sequence_rows_of_a_run(tmp_path, monkeypatch):
     assert len(cached) == 3 * 3                                       # three components of three frames
     assert main(argv + ["--force"]) == 0
     assert sorted(p.name for p in (tmp_path / "cache" / "references").glob("*/*")) == cached
+    again = tmp_path / "again"                                         # a re-run renders nothing: rows from the cache
+    assert main(argv[:-1] + [str(again)]) == 0
+    rerun = pd.read_csv(again / "results.csv")
+    assert set(rerun["status"]) == {"cached"}
+    assert list(rerun["relmse.indirect"]) == list(rows["relmse.indirect"])
+    assert (again / rows["image_dir"][0] / "frame_002_combined.exr").is_file()
+    assert (again / "references" / "rooms_light_sweep" / "main" / "frame_001_indirect_visible.exr").is_file()
 
 
 def test_unknown_sequence_is_bad_input(capsys):

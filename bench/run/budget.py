@@ -29,7 +29,7 @@ from bench.run import cost
 from bench.run.config import RunConfig, sequence_config
 from bench.run.plan import Job
 from bench.run.row_cache import RowCache, row_cache_key, row_image_names
-from bench.run.sequence_rows import last_change, sequence_jobs
+from bench.run.sequence_rows import last_change, sequence_jobs, sequence_key
 
 ROW_PHASES = ("precompute", "timing", "error_frames", "rows_other", "metrics", "sequences")
 PHASES = ("setup", "shared_passes", "references") + ROW_PHASES
@@ -236,7 +236,7 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
     for row in planned:   # a view whose rows are all skipped by their guards costs nothing
         views.setdefault((row.job.scene, row.job.view), {"shared_passes": 0.0, "references": 0.0,
                                                          "references_refinement": 0.0})
-    sequence_rows, sequence_views, sequence_facts = plan_sequences(cfg, sequences or {}, model)
+    sequence_rows, sequence_views, sequence_facts = plan_sequences(cfg, sequences or {}, model, renderer)
     planned += sequence_rows
     views.update(sequence_views)
     metrics_per_row = model.metrics_s_per_pixel * cfg.width * cfg.height if cfg.references else 0.0
@@ -245,7 +245,7 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
                    metrics_per_row_s=metrics_per_row)
 
 
-def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel) -> tuple:
+def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, renderer: str = "") -> tuple:
     """(planned rows, views, scene facts) of a run's sequence rows (bench.run.sequence_rows), each
     predicted whole under the phase `sequences`: its frames (the method's frame and the shared
     passes, every frame), a preparation at frame 0 and in every frame something moved (the
@@ -254,6 +254,7 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel) -> tu
     frames at rest share the last one's)."""
     scfg = sequence_config(cfg)
     rows, views, facts_of = [], {}, {}
+    rows_cache = RowCache(log=lambda m: None)
     for name, view, method, index, pset in sequence_jobs(cfg, sequences):
         seq = sequences[name]
         if name not in facts_of:
@@ -262,9 +263,15 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel) -> tu
         job = Job(name, view, method, index, pset)
         try:
             cls = load_method(method)
-            terms = cost.row_terms(cls, resolve_params(cls, pset), size)
+            params = resolve_params(cls, pset)
+            terms = cost.row_terms(cls, params, size)
+            key = sequence_key(seq, view, method, method_version(cls), params, scfg, renderer)
         except Exception as exc:
             rows.append(PlannedRow(job, 0, "guard", {}, f"fails to load ({' '.join(str(exc).split())[:80]})"))
+            continue
+        if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
+            rows.append(PlannedRow(job, 0, "cached", {"sequences": 0.0}, "in the row cache"))
+            views.setdefault((name, view), {"shared_passes": 0.0, "references": 0.0, "references_refinement": 0.0})
             continue
         if terms is None:
             rows.append(PlannedRow(job, 0, "guard", {}, "its method's guard skips it (a declared limit)"))

@@ -72,9 +72,10 @@ def row_cache_key(scene, camera: str, method: str, version: str, params: dict, c
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
-def entry_problem(d: Path, error_frames: int = 1) -> str | None:
+def entry_problem(d: Path, error_frames: int = 1, files: list | None = None) -> str | None:
     """Why a row cache entry cannot be trusted (one phrase), or None when every checksum holds and
-    it holds the images of a row of `error_frames` error frames."""
+    it holds the images of a row of `error_frames` error frames (or, given, exactly `files`: a
+    sequence row's frames)."""
     try:
         entry = json.loads((d / "row.json").read_bytes())
     except FileNotFoundError:
@@ -90,10 +91,11 @@ def entry_problem(d: Path, error_frames: int = 1) -> str | None:
         return "has a row.json whose checksum does not match"
     if not all(isinstance(row.get(k), str) for k in ("scene", "method", "status")):
         return "has a row without scene, method or status"
-    held = _frames(row.get("extra.error_frames", 1))
-    if held != _frames(error_frames):
-        return f"holds {held} error frame(s), the run asks for {error_frames}"
-    for name in (f"{c}.exr" for c in row_image_names(error_frames)):
+    if files is None:
+        held = _frames(row.get("extra.error_frames", 1))
+        if held != _frames(error_frames):
+            return f"holds {held} error frame(s), the run asks for {error_frames}"
+    for name in files if files is not None else (f"{c}.exr" for c in row_image_names(error_frames)):
         try:
             ok = files.get(name) == file_sha256(d / name)
         except OSError:
@@ -113,12 +115,12 @@ class RowCache:
     def entry_dir(self, key: str) -> Path:
         return self.root / key[:2] / key
 
-    def lookup(self, key: str, error_frames: int = 1):
+    def lookup(self, key: str, error_frames: int = 1, files: list | None = None):
         """(row, entry folder) of a verified cache entry, or None; a bad entry is evicted with a warning."""
         d = self.entry_dir(key)
         if not d.is_dir():
             return None
-        problem = entry_problem(d, error_frames)
+        problem = entry_problem(d, error_frames, files)
         if problem is None:
             entry = json.loads((d / "row.json").read_bytes())
             return dict(entry["row"]), d
@@ -126,28 +128,30 @@ class RowCache:
         self.log(f"gibench: warning: row cache entry {d} {problem}: evicted, the row is rendered again")
         return None
 
-    def restore(self, key: str, image_dir: Path, error_frames: int = 1):
-        """A verified entry's row, its images copied into `image_dir`; None on a miss."""
-        hit = self.lookup(key, error_frames)
+    def restore(self, key: str, image_dir: Path, error_frames: int = 1, files: list | None = None):
+        """A verified entry's row, its images (or `files`) copied into `image_dir`; None on a miss."""
+        hit = self.lookup(key, error_frames, files)
         if hit is None:
             return None
         row, entry_dir = hit
         image_dir.mkdir(parents=True, exist_ok=True)
-        for comp in row_image_names(error_frames):
-            shutil.copyfile(entry_dir / f"{comp}.exr", image_dir / f"{comp}.exr")
+        for name in files if files is not None else [f"{c}.exr" for c in row_image_names(error_frames)]:
+            shutil.copyfile(entry_dir / name, image_dir / name)
         return row
 
-    def store(self, key: str, row: dict, image_dir: Path) -> None:
+    def store(self, key: str, row: dict, image_dir: Path, files: list | None = None) -> None:
         d = self.entry_dir(key)
         tmp = d.with_name(d.name + f".tmp{os.getpid()}")
         try:
             if tmp.exists():
                 shutil.rmtree(tmp)
             tmp.mkdir(parents=True)
+            names = files if files is not None else \
+                [f"{c}.exr" for c in row_image_names(row.get("extra.error_frames", 1))]
             files = {}
-            for comp in row_image_names(row.get("extra.error_frames", 1)):
-                shutil.copyfile(image_dir / f"{comp}.exr", tmp / f"{comp}.exr")
-                files[f"{comp}.exr"] = file_sha256(tmp / f"{comp}.exr")
+            for name in names:
+                shutil.copyfile(image_dir / name, tmp / name)
+                files[name] = file_sha256(tmp / name)
             clean = json.loads(json.dumps(row, default=json_default))
             entry = {"format": ROW_CACHE_FORMAT, "row": clean, "row_sha256": row_sha256(clean), "files": files}
             (tmp / "row.json").write_text(json.dumps(entry, default=json_default))

@@ -37,21 +37,33 @@ from bench.model.imageio import write_exr
 from bench.protocol import results as store
 from bench.protocol.method import SkipRow, resolve_params
 from bench.protocol.registry import load_method
-from bench.protocol.versioning import method_version
+from bench.protocol.versioning import harness_version, method_version
 from bench.protocol.vocabulary import IMAGE_COMPONENTS, REFERENCE_COMPONENTS, Status, failure_reason
 from bench.run.config import RunConfig, cache_root, effective_shadow_resolution, sequence_config, sequence_param_sets
 from bench.run.plan import image_folder
 from bench.run.harness import run_method
+from bench.run.row_cache import RowCache
 from bench.run.sequence import run_sequence
 from reference.api import ReferenceUnavailable, get_reference
 
 
 def sequence_key(sequence, view: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str) -> str:
-    """Everything a sequence row's images depend on: every frame's scene content among them."""
-    payload = {"frames": [sequence.frame(t).content_hash() for t in range(sequence.frames)], "view": view,
-               "method": method, "version": version, "params": params, "width": cfg.width, "height": cfg.height,
-               "seed": cfg.seed, "shadow_resolution": effective_shadow_resolution(cfg), "renderer": renderer}
+    """Everything a sequence row depends on: every frame's scene content, the method's version and
+    parameters, the size, seed, renderer, the harness, and the references its errors are against
+    (their spp cap: the row holds its error columns)."""
+    payload = {"kind": "sequence", "frames": [sequence.frame(t).content_hash() for t in range(sequence.frames)],
+               "view": view, "method": method, "version": version, "params": params, "width": cfg.width,
+               "height": cfg.height, "seed": cfg.seed, "shadow_resolution": effective_shadow_resolution(cfg),
+               "renderer": renderer, "harness": harness_version(), "references": bool(cfg.references),
+               "reference_spp": int(cfg.reference_spp_cap)}
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+def sequence_files(frames: int) -> list:
+    """The files a sequence row keeps (and the row cache holds): every frame's images, the last
+    frame's under the usual names, the per-frame table."""
+    return ([f"frame_{t:03d}_{c}.exr" for t in range(frames) for c in IMAGE_COMPONENTS]
+            + [f"{c}.exr" for c in IMAGE_COMPONENTS] + ["frames.csv"])
 
 
 class SequenceReferences:
@@ -113,6 +125,7 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
     t_start = time.perf_counter()
     references = SequenceReferences(runner.run_dir, cfg, runner.log) if cfg.references else None
     memo = cache_root() / "metrics"
+    rows_cache = RowCache(runner.log)
     for name, view, method, index, pset in sequence_jobs(cfg, runner.sequences):
         seq = runner.sequences[name]
         row = {"scene": name, "sequence": name, "view": view, "method": method, "params": store.params_json(pset),
@@ -132,6 +145,17 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
             row["row_key"] = sequence_key(seq, view, method, version, params, cfg, renderer)
             folder = _row_dir(seq, view, method, cls, params)
             row["image_dir"] = str(folder)
+            cached = None if cfg.force else rows_cache.restore(row["row_key"], runner.run_dir / folder,
+                                                               files=sequence_files(seq.frames))
+            if cached is not None:   # measured values from the cache, every label from this run
+                for t in range(seq.frames if references is not None else 0):
+                    references.frame(seq, view, t)   # the run folder's per-frame references (from their cache)
+                cached.update(row)
+                cached["status"] = Status.CACHED
+                runner.counts["cached"] += 1
+                runner.rows.append(cached)
+                runner.record(cached, write=False)
+                continue
             result = run_sequence(ctx, cls, seq, view, cfg.width, cfg.height, params, seed=cfg.seed,
                                   shadow_resolution=effective_shadow_resolution(cfg))
         except SkipRow as exc:
@@ -148,6 +172,7 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
                 row.update(_lag(ctx, method, cls, seq, view, params, cfg, references, memo))
             row["status"] = Status.OK
             runner.counts["ok"] += 1
+            rows_cache.store(row["row_key"], row, runner.run_dir / folder, files=sequence_files(seq.frames))
         runner.rows.append(row)
         runner.record(row)
     ref_s = references.seconds if references is not None else 0.0   # the references are their own phase
