@@ -179,3 +179,24 @@ def test_frame_one_is_a_static_render_at_frame_ones_pose(gl_ctx, method):
     moving = run_sequence(gl_ctx, cls, seq, "main", W, H, {}, shadow_resolution=256)
     static = run_method(gl_ctx, cls, seq.frame(1), "main", W, H, {}, shadow_resolution=256, frames=1)
     assert np.array_equal(moving.images[1][0], static.direct) and np.array_equal(moving.images[1][1], static.indirect)
+
+
+@pytest.mark.gl
+def test_visibility_gates_keeps_its_topology_when_only_the_camera_moves(gl_ctx, monkeypatch):
+    """The topology of empty space depends on geometry: a camera move inside the same empty space
+    reuses it (only the GPU side is rebuilt), a moved block builds it again in that frame."""
+    import methods.visibility_gates.method as gates
+    from bench.model.corpus import load_scene
+    built = []
+    real = gates.build_topology
+    monkeypatch.setattr(gates, "build_topology", lambda *a, **k: built.append(1) or real(*a, **k))
+    gates._TOPOLOGY_CACHE.clear()
+    box = load_scene("cornell_spot")
+    walk = Sequence.build("look", box, 3, [("camera", "main", {2: {"eye": [0.2, 1.1, 0.8]}})])
+    result = run_sequence(gl_ctx, gates.VisibilityGates, walk, "main", W, H, {"vpl_count": 64}, shadow_resolution=256)
+    assert len(built) == 1 and all(f.update_ms > 0 for f in result.frames[1:])
+    gates._TOPOLOGY_CACHE.clear()
+    built.clear()
+    run_sequence(gl_ctx, gates.VisibilityGates, load_sequence("cornell_spot_moving_block", frames=3, rest=0), "main",
+                 W, H, {"vpl_count": 64}, shadow_resolution=256)
+    assert len(built) == 3                                 # frame 0, then each frame the block moved

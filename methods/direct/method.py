@@ -18,6 +18,11 @@ Example:
 
 Stages: none of its own (the shared `gbuffer_shadow` and `direct_light`). Needs: direct,
 shadow_map.
+
+In motion (bench.run.sequence): It keeps nothing of its own (it shows the shared direct pass, which
+every frame renders): any motion costs it nothing beyond the frame. Measured update per moved frame
+at 160x90, light (rooms_light_sweep) 0 ms, camera (sponza_camera_walk) 0 ms, geometry
+(cornell_spot_moving_block) 0 ms (`python -m studies.motion_costs`, 2 cores shared with other work).
 """
 from bench.protocol.method import FrameOutput, MethodBase
 

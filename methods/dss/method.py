@@ -108,6 +108,12 @@ count: the series' slope is in the report's cost-vs-triangles plot.
 Measurements: NOTES.md beside this file holds the figures behind the rules above and the
 history of the receiver placement and the sampling keys.
 
+In motion (bench.run.sequence): It keeps nothing between states: a frame where anything moved
+prepares it again, surfel generation from the triangles included. Measured update per moved frame at
+160x90, light (rooms_light_sweep) 32 ms, camera (sponza_camera_walk) 204 ms, geometry
+(cornell_spot_moving_block) 59 ms (`python -m studies.motion_costs`, 2 cores shared with other
+work).
+
 Stress limit coplanar: coincident coplanar faces both carry surfels, so the overlapped area emits twice while Mitsuba's rays see one surface (cornell_box 64x48: mean +6.3%).
 """
 from __future__ import annotations

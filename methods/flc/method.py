@@ -173,6 +173,12 @@ Measurements: NOTES.md beside this file holds the figures behind these rules and
 single-frame study against jittered `manylights` and Mitsuba, the N_avg sweep, frame times,
 each rule's comparison); `python -m studies.flc_study` reproduces them.
 
+In motion (bench.run.sequence): It keeps nothing between states (its light cuts are rebuilt from the
+frame's geometry and direct light every frame): a frame where anything moved prepares it again
+(programs and per-scene buffers). Measured update per moved frame at 160x90, light
+(rooms_light_sweep) 11 ms, camera (sponza_camera_walk) 46 ms, geometry (cornell_spot_moving_block)
+44 ms (`python -m studies.motion_costs`, 2 cores shared with other work).
+
 Stress limit params:progressive_frames=4096: 4096 sub-frames averaged in one render by design (the converged estimate); minutes per frame on llvmpipe, over the stress suite's timeout.
 Stress limit params:dnear_factor=0.001: D_near of 1e-3 R_scene makes S_0 ~1e6 times smaller, so nearly every triangle is divergent and tessellated into millions of VPLs (the paper's D_near is 0.2 R_scene); the row exceeds the stress suite's timeout.
 Stress limit coplanar: coincident coplanar faces are two emitting triangles in eq. 4's sum over triangles (the paper's formulation) while Mitsuba's rays see one surface: the overlapped area emits twice (cornell_box 64x48: mean +6.3%).

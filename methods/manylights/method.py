@@ -55,6 +55,11 @@ Stages: `vpl_irradiance` (compute: every triangle's VPL and its shadowed radiosi
 (full screen, every VPL at every pixel). Needs: gbuffer, shadow_map, direct. NOTES.md holds the
 measurements.
 
+In motion (bench.run.sequence): It keeps nothing between states: a frame where anything moved
+prepares it again (the per-triangle emitter records). Measured update per moved frame at 160x90,
+light (rooms_light_sweep) 7 ms, camera (sponza_camera_walk) skipped, geometry
+(cornell_spot_moving_block) 5 ms (`python -m studies.motion_costs`, 2 cores shared with other work).
+
 Stress limit params:jitter_frames=4096: 4096 jittered VPL sets summed in one frame by design (the converged reference of the jittered sum), 4096 x the default frame's work: minutes per frame on llvmpipe, over the stress case timeout (hidden_bounce 64x48: over 300 s; big_floor, sphere_inside: over 120 s).
 Stress limit coplanar: a second triangle coincident with part of another is a second emitter in the sum over triangles (eq. 4 of the FLC paper, this method's definition) while Mitsuba's rays see one surface: that area emits twice (cornell_box 64x48: mean +7.8%, indirect +20%).
 Stress limit t_junction: the sum puts one VPL at each triangle's centroid (jittered only with jitter_frames > 1), so re-triangulating a surface moves VPLs; next to corners the 1/d^2 term turns that into visible changes (cornell_box 64x48: indirect 8.7%, mean -2.2%; conference 64x48, whose 32 split hosts are drawn by area, i.e. its largest walls and ceiling triangles, each one VPL: indirect 45%, mean +7.9%). It is a different discretisation of the same surface, not an error of the sum.

@@ -144,6 +144,14 @@ pbgi.gather=hierarchy,all_pairs` (the hierarchy against the article's all-pairs 
 
 Limits of the stress suite's parameter extremes (`gibench stress`, issue #12; each a cost the
 article states, at the suite's 300 s case timeout on llvmpipe, 2 shared cores):
+In motion (bench.run.sequence): A moved light or camera costs it nothing to redo (update keeps the
+amortised gather: every frame relights the texels from its own shadow maps), but the displayed
+window catches up with the new light only over the next windows: its `lag_frames`. Moved geometry
+prepares it again (unwrap, texture-space G-buffer) and its next frame converges a whole window.
+Measured update per moved frame at 160x90, light (rooms_light_sweep) 0 ms, camera
+(sponza_camera_walk) 0 ms, geometry (cornell_spot_moving_block) 372 ms (`python -m
+studies.motion_costs`, 2 cores shared with other work).
+
 Stress limit params:refine_ratio=0: every node refined to its texels is the article's all-pairs loop ("Of course this pass is really slow"), texels^2 transfers per bounce (52,600^2 = 2.8e9 on cornell_spot's 256^2 lightmap) through the stackless walk: over 300 s (gather=all_pairs, the same sum without the walk, finishes)
 Stress limit params:bounces=8: the untimed first frame converges bounces x W frames of the amortised gather (the article computes the gather "in more than one frame by sampling only a few emitters each time"), each bounce re-gathering its window: 8 x 26 = 208 frames of work on cornell_spot's 256^2 lightmap, over 300 s (hidden_bounce, 256^2 already with 20 texels/m, timed out before the density rule changed)
 Stress limit params:max_lightmap_resolution=1024: on a real scene the cap no longer binds, so the untimed first frame converges a window of 7x the texels: sibenik 291,941 texels and W = 143 frames (42,702 and 21 at the default 256), each frame's gather over 7x the receivers, ~50x the default's convergence work, over 300 s with a second stress run sharing the 2 cores; conference (its cap at 1024 done within 300 s on a quieter machine), cornell_box and the procedural scenes pass

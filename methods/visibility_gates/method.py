@@ -174,6 +174,12 @@ positional light in the space around the geometry) are skipped (SkipRow); so are
 2^20 visibility clusters or more. `extra` of the frame output reports the precomputation time
 (s, and per step), cluster counts (greedy, after merging), gate count and `closed_by_box`.
 
+In motion (bench.run.sequence): The topology of empty space is kept when only cameras or lights
+moved and every eye and positional light is still inside it (the GPU side is rebuilt); moved
+geometry builds it again in that frame. Measured update per moved frame at 160x90, light
+(rooms_light_sweep) 12 ms, camera (sponza_camera_walk) 10 ms, geometry (cornell_spot_moving_block)
+488 ms (`python -m studies.motion_costs`, 2 cores shared with other work).
+
 Stress limit params:voxel_resolution=256: the voxelisation's exact-distance index samples every triangle half a voxel apart (voxels.SurfaceIndex): conference (331k triangles, 256 voxels along its longest side) needs 21.5M samples (2.5M at the default 64), and with their k-d tree and the voxel arrays the voxelisation exceeds the stress suite's 6 GiB per-case memory cap (MemoryError allocating 403 MiB); sibenik, cornell_box and the procedural scenes pass at 256
 """
 from __future__ import annotations
@@ -217,9 +223,13 @@ def topology_seeds(scene) -> np.ndarray:
     return np.array(points, float).reshape(-1, 3)
 
 
+def topology_key(scene, resolution: int, alpha_percent: float, merge_fraction: float) -> tuple:
+    return (scene.content_hash(), int(resolution), float(alpha_percent), float(merge_fraction))
+
+
 def scene_topology(scene, resolution: int, alpha_percent: float, merge_fraction: float) -> tuple[Topology, bool]:
     """The scene's topology (built, or from the small in-process cache) and whether it was cached."""
-    key = (scene.content_hash(), int(resolution), float(alpha_percent), float(merge_fraction))
+    key = topology_key(scene, resolution, alpha_percent, merge_fraction)
     if key in _TOPOLOGY_CACHE:
         _TOPOLOGY_CACHE.move_to_end(key)
         return _TOPOLOGY_CACHE[key], True
@@ -279,6 +289,19 @@ class VisibilityGates(MethodBase):
     def cost_terms(cls, params, size):
         return {"pixel_vpls": size.pixels * params["vpl_count"],          # gated gather
                 "voxels": params["voxel_resolution"] ** 3}                # the topology of empty space
+
+    def update(self, gpu, scene, facts, params, view, changes) -> None:
+        """A scene in motion (bench.run.sequence). The topology of empty space depends on the
+        geometry, and on which empty space holds the eyes and lights (its seeds): it is kept when
+        only cameras or lights moved and every eye and positional light is still inside one of its
+        clusters (registered for the frame's scene, so preparing again finds it and rebuilds only
+        the GPU side: the view's slices, the gate buffers); moved geometry, or a seed that left the
+        empty space it describes, builds it again inside the frame (its cost is the frame's)."""
+        if "geometry" not in changes and np.all(self.topology.cluster_of(topology_seeds(scene)) >= 0):
+            key = topology_key(scene, params["voxel_resolution"], params["alpha_percent"],
+                               params["merge_gate_fraction"])
+            _TOPOLOGY_CACHE[key] = self.topology
+        super().update(gpu, scene, facts, params, view, changes)
 
     def prepare(self, gpu, scene, facts, params, view) -> None:
         self.params = params
