@@ -110,6 +110,9 @@ def test_layers(graph):
                                                        "methods", "reports"))
     bad += _violations(graph, "reports", forbidden=("bench.run", "bench.gl", "bench.stress", "bench.cli", "methods",
                                                     "reference"))                        # never renders
+    bad += _violations(graph, "bench.history", forbidden=("bench.run", "bench.gl", "bench.stress", "bench.cli",
+                                                          "methods", "reports"))         # reads run folders
+    bad += _violations(graph, "bench.kit", forbidden=("reports", "methods", "bench.cli", "bench.stress"))
     assert bad == []
 
 

@@ -129,7 +129,8 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
     for name, view, method, index, pset in sequence_jobs(cfg, runner.sequences):
         seq = runner.sequences[name]
         row = {"scene": name, "sequence": name, "view": view, "method": method, "params": store.params_json(pset),
-               "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": seq.frames, "warmup": 0}
+               "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": seq.frames, "warmup": 0,
+               "rung": store.params_json(pset)}
         skipped = runner.sequence_skip(name, view, method, index)
         if skipped is not None:   # over the run's budget: planned so, or the budget is spent
             row["status"] = Status.skipped(skipped)

@@ -284,7 +284,10 @@ class Runner:
         view, method_name = job.view, job.method
         row = {"scene": scene.name, "scene_hash": scene.content_hash(), "view": view, "method": method_name,
                "params": store.params_json(job.params), "seed": cfg.seed, "width": cfg.width, "height": cfg.height,
-               "frames": cfg.frames, "warmup": cfg.warmup}
+               "frames": cfg.frames, "warmup": cfg.warmup,
+               # the declared override this row ran (its ladder rung or --param set; "{}" for the defaults):
+               # `params` is resolved below, and a history keeps a rung's series across a changed default
+               "rung": store.params_json(job.params)}
         try:
             cls = load_method(method_name)
             resolved = self.resolved.get((method_name, job.index))
