@@ -1,11 +1,11 @@
 """The method registry: fake entry points, lazy listing, failing plugins."""
-import json
 import sys
 import types
 from importlib.metadata import EntryPoint
 
 import pytest
 
+from bench.kit.conformance import ladder_problems, manual_problems, parameter_problems
 from bench.protocol import registry
 from bench.protocol.method import MethodBase, Param, ParamError, resolve_params
 
@@ -78,18 +78,22 @@ def test_params_are_range_checked():
         resolve_params(FakeGood, {"q": 1})
     with pytest.raises(ParamError, match="must be an integer"):
         resolve_params(FakeGood, {"n": 2.5})
+    assert parameter_problems(FakeGood) == []   # the conformance suite's parameters check agrees
 
 
 @pytest.mark.parametrize("name", registry.list_methods())
 def test_quality_ladder_is_well_formed(name):
-    # a ladder (issue #14) is 3-5 distinct valid rungs, fast -> accurate, with the defaults among them
+    # a ladder (issue #14) is 3-5 distinct valid rungs, fast -> accurate, with the defaults among
+    # them, and the manual says what it is: the conformance suite's declared-ladder and manual checks
     cls = registry.load_method(name)
-    ladder = cls.ladder
-    if not ladder:
-        return
-    assert 3 <= len(ladder) <= 5, f"{name}: {len(ladder)} rungs"
-    assert {} in [dict(r) for r in ladder], f"{name}: the defaults are not a rung"
-    resolved = [json.dumps(resolve_params(cls, r), sort_keys=True) for r in ladder]
-    assert len(set(resolved)) == len(resolved), f"{name}: two rungs resolve to the same parameters"
-    manual = sys.modules[cls.__module__].__doc__ or ""
-    assert "ladder" in manual.lower(), f"{name}: the manual does not list its quality ladder"
+    assert ladder_problems(cls) == [], name
+    assert [p for p in manual_problems(cls) if "ladder" in p] == [], name
+
+
+def test_the_ladder_check_names_each_fault():
+    for ladder, fault in (((), None), (({}, {"n": 8}), "the ladder has 2 rungs, not 3-5"),
+                          (({"n": 2}, {"n": 8}, {"n": 16}), "the defaults ({}) are not a rung"),
+                          (({"n": 2}, {}, {"n": 4}), "two rungs resolve to the same parameters"),
+                          (({"n": 2}, {}, {"n": 17}), "rung {'n': 17} is invalid")):
+        problems = ladder_problems(type("Laddered", (FakeGood,), {"ladder": ladder}))
+        assert (problems == []) if fault is None else any(p.startswith(fault) for p in problems), (ladder, problems)

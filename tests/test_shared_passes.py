@@ -7,10 +7,12 @@ import numpy as np
 import pytest
 
 from bench.gl import GpuScene, SharedPasses
-from bench.gl.passes import read_rgba, shared_variant, stages_for_needs
+from bench.gl.passes import shared_variant, stages_for_needs
+from bench.kit.rendered_checks import changed_textures, snapshot
 from bench.run.harness import measure_shared_passes, run_method
 from bench.protocol.registry import list_methods, load_method
 from tests.conftest import make_grid_box, make_open_box
+from tests.fixtures.conformance import verdicts_of
 
 W, H, SHADOW = 64, 48, 256
 
@@ -45,24 +47,6 @@ def union_needs(*classes):
     return out
 
 
-def snapshot(passes) -> dict:
-    """Every texture of the shared passes, read back."""
-    out = {}
-    g = passes.gbuffer
-    if g is not None:
-        for name in ("position", "normal", "albedo", "geo_normal"):
-            out[f"gbuffer.{name}"] = read_rgba(getattr(g, name))
-        out["gbuffer.depth"] = np.frombuffer(g.depth.read(), np.float32).copy()
-    if passes.shadows is not None:
-        out["shadows.atlas"] = read_rgba(passes.shadows.atlas)
-    if passes.direct is not None:
-        out["direct.radiance"] = read_rgba(passes.direct.radiance)
-    if passes.rsm is not None:
-        for name in ("position", "normal", "flux"):
-            out[f"rsm.{name}"] = read_rgba(getattr(passes.rsm, name))
-    return out
-
-
 def test_two_methods_with_lent_passes_give_the_images_of_their_own(gl_ctx):
     """manylights (no RSM) and ir_unshadowed (RSM) on one view, both reading passes built once
     with the union of their needs, give bit for bit the frame-0 images of run_method alone."""
@@ -87,27 +71,18 @@ def test_two_methods_with_lent_passes_give_the_images_of_their_own(gl_ctx):
 
 def test_every_method_only_reads_the_shared_passes(gl_ctx):
     """Protocol: with the passes lent, every registered method (default parameters) leaves every
-    shared texture as it found it, and its images are those of run_method alone."""
-    scene = make_grid_box(n=3)
-    classes = [load_method(name) for name in list_methods()]
-    gpu = GpuScene(gl_ctx, scene)
+    shared texture as it found it, and its images are those of a row with passes of its own: the
+    conformance suite's `shared_passes` check (bench.kit), which every method must pass."""
     ran = []
-    try:
-        shared = lend(gl_ctx, gpu, union_needs(*[c for c in classes if c.reuses_shared_passes]), frames=1)
-        before = snapshot(shared.passes)
-        for cls in classes:
-            alone = run_method(gl_ctx, cls, scene, "main", W, H, warmup=1, frames=1, shadow_resolution=SHADOW)
-            got = run_method(gl_ctx, cls, scene, "main", W, H, warmup=1, frames=1, shadow_resolution=SHADOW,
-                             gpu=gpu, shared=shared)
-            after = snapshot(shared.passes)
-            changed = [k for k in before if not np.array_equal(before[k], after[k])]
-            assert not changed, f"method '{cls.name}' wrote the shared {changed}"
-            assert np.array_equal(got.direct, alone.direct) and np.array_equal(got.indirect, alone.indirect), cls.name
-            assert got.extra.get("shared_passes_reused", False) == cls.reuses_shared_passes
-            ran.append(cls.name)
-        shared.passes.release()
-    finally:
-        gpu.release()
+    for name in list_methods():
+        cls = load_method(name)
+        check = verdicts_of(name)["shared_passes"]
+        assert check.ok, f"method '{name}' {check.reason}"
+        if cls.reuses_shared_passes:
+            assert "shared textures unchanged, the same images as with its own" in check.reason, (name, check.reason)
+        else:
+            assert "declares reuses_shared_passes = False" in check.reason, (name, check.reason)
+        ran.append(name)
     assert sorted(ran) == sorted(list_methods()), f"only {ran} ran"
 
 
@@ -224,18 +199,10 @@ def test_runner_renders_each_views_shared_passes_once(tmp_path, monkeypatch):
 
 
 def test_a_method_writing_the_shared_passes_is_caught(gl_ctx):
-    """The snapshot the protocol test compares sees a write (here: a clear of the direct pass)."""
-    from bench.gl.context import park
+    """The snapshot the protocol test compares sees a write (here: the broken plugin of the
+    conformance fixtures, which clears the direct pass)."""
+    from tests.fixtures.plugins.writes_shared.method import WritesShared as ClearsDirect
     direct = load_method("direct")
-
-    class ClearsDirect(direct):
-        def render(self, frame, prof):
-            fbo = frame.ctx.framebuffer([frame.passes.direct.radiance])
-            fbo.clear(1.0, 0.0, 0.0, 1.0)
-            park(frame.ctx)
-            fbo.release()
-            return super().render(frame, prof)
-
     scene = make_open_box()
     gpu = GpuScene(gl_ctx, scene)
     try:
@@ -243,8 +210,7 @@ def test_a_method_writing_the_shared_passes_is_caught(gl_ctx):
         before = snapshot(shared.passes)
         run_method(gl_ctx, ClearsDirect, scene, "main", W, H, warmup=1, frames=1, shadow_resolution=SHADOW,
                    gpu=gpu, shared=shared)
-        after = snapshot(shared.passes)
-        assert [k for k in before if not np.array_equal(before[k], after[k])] == ["direct.radiance"]
+        assert changed_textures(before, snapshot(shared.passes)) == ["direct.radiance"]
         shared.passes.release()
     finally:
         gpu.release()

@@ -396,7 +396,7 @@ def _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, pass
         if identical:
             if first is None:
                 first = images
-            elif not all(np.array_equal(first[c], images[c]) for c in FRAME_STAT_COMPONENTS):
+            elif not all(np.array_equal(first[c], images[c], equal_nan=True) for c in FRAME_STAT_COMPONENTS):
                 raise RuntimeError(f"method '{method_cls.name}' declares identical frames (frames_identical) at these "
                                    f"parameters, but its frame {index} differs from frame 0")
         for component, acc in stats.items():
