@@ -5,7 +5,7 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libllvm19"
+APT_PACKAGES="libegl1 libegl-mesa0 libgl1-mesa-dri libgbm1 libllvm19 g++"   # g++: the native HDR-FLIP build (bench/analysis/flip_native)
 if [ "${GIBENCH_BROWSER:-0}" = "1" ]; then APT_PACKAGES="$APT_PACKAGES chromium"; fi
 missing=""
 for p in $APT_PACKAGES; do

@@ -7,7 +7,8 @@ reach every shortcut: FLIP's crop (a background band, images equal to their refe
 regions, differing pixels at the image's edges and corners), an image equal to its reference,
 an all-zero reference, a mask with holes, images smaller than FLIP's filters.
 
-No timing here (speed targets live in benchmarks). To measure the cost of one row at 320x180:
+No timing here (speed targets live in benchmarks). To measure the cost of one row at 320x180
+(a view's first row and the next ones, and per phase):
 
     PYTHONPATH=. python -m tests.test_metrics_speed [repetitions]
 """
@@ -196,6 +197,39 @@ def test_metric_functions_equal_the_straightforward_path(name, img, ref, mask):
     cropped = M._flip_covered(np.where(m[..., None], img.astype(np.float64), 0.0),
                               np.where(m[..., None], ref.astype(np.float64), 0.0), m, *exposure)
     assert np.array_equal(full, cropped)
+    # the reference's half on the whole image, the image's on the crop (what evaluate_row's cache reuses)
+    prepared = M.PreparedReference(ref, m)
+    halves = M._flip_covered(np.where(m[..., None], img.astype(np.float64), 0.0), prepared.ref_b, m, *exposure,
+                             reference_features=prepared.flip_features)
+    assert np.array_equal(full, halves)
+    assert same(M.compute_all(img, ref, mask, prepared=prepared), slow)
+
+
+def test_rows_of_a_view_reuse_its_references_and_keep_their_values():
+    """evaluate_row keeps each reference's side (PreparedReference) for the next rows of the view:
+    the second method's row is judged against the kept ones and still equals the straightforward path."""
+    from bench.analysis import evaluation
+    images, refs = synthetic_row(40, 60, seed=7)
+    other = {k: (v * 1.3).astype(np.float32) for k, v in images.items()}   # another method, the same mask
+    evaluation._PREPARED.clear()
+    for row in (images, other, images):
+        fast = {k: v for k, v in evaluate_row(row, refs).items() if not k.startswith("mean_ratio.")}
+        slow = reference_row(row, refs)
+        assert same(fast, slow), differences(fast, slow)
+    assert len(evaluation._PREPARED) == len(COMPARISONS)      # one per reference of the view, reused
+    mask = coverage_mask(images, refs)
+    kept = evaluation.prepared_reference(refs["direct"], mask)
+    assert evaluation.prepared_reference(refs["direct"].copy(), mask.copy()) is kept   # by content
+    assert evaluation.prepared_reference(refs["direct"], ~mask) is not kept
+
+
+def test_kept_references_are_bounded_in_bytes(monkeypatch):
+    from bench.analysis import evaluation
+    monkeypatch.setattr(evaluation, "PREPARED_CACHE_BYTES", 1)
+    evaluation._PREPARED.clear()
+    images, refs = synthetic_row(20, 30, seed=8)
+    evaluate_row(images, refs)
+    assert len(evaluation._PREPARED) == 0
 
 
 def test_flip_reach_covers_flips_filters():
@@ -207,33 +241,45 @@ def test_flip_reach_covers_flips_filters():
 # ---------------------------------------------------------------------------- measurement (not a test)
 def main(repetitions: int = 5) -> None:
     """Cost of one row at 320x180 (all four comparisons, no memo): CPU and wall, median of
-    `repetitions`, and per metric on the `combined` comparison."""
+    `repetitions`; a view's first row (its references prepared: `cold`) and the next ones (`warm`),
+    then per phase on the `combined` comparison."""
     import statistics
     import time
+    from bench.analysis import evaluation, flip_native
     images, refs = synthetic_row()
-    evaluate_row(images, refs)   # imports, first calls
+    evaluate_row(images, refs)   # imports, first calls, the compiled FLIP loaded (or built)
 
-    def timed(fn):
+    def timed(fn, before=lambda: None):
         cpu, wall = [], []
         for _ in range(repetitions):
+            before()
             c, t = time.process_time(), time.perf_counter()
             fn()
             cpu.append(time.process_time() - c)
             wall.append(time.perf_counter() - t)
         return statistics.median(cpu), statistics.median(wall)
-    cpu, wall = timed(lambda: evaluate_row(images, refs))
-    print(f"evaluate_row 320x180: cpu {cpu:.3f} s, wall {wall:.3f} s (median of {repetitions})")
+    backend = "compiled FLIP.h" if flip_native.library() is not None else "flip-evaluator wheel"
+    print(f"HDR-FLIP: {backend}")
+    for name, before in (("cold", evaluation._PREPARED.clear), ("warm", lambda: None)):
+        cpu, wall = timed(lambda: evaluate_row(images, refs), before)
+        print(f"evaluate_row 320x180 {name}: cpu {cpu:.3f} s, wall {wall:.3f} s (median of {repetitions})")
     mask = coverage_mask(images, refs)
     img, ref = images["combined"], refs["direct"] + refs["indirect_visible"]
-    s, exposure = M.tonemap_scale(ref, mask), M.flip_exposure_range(ref, mask)
-    for name, fn in (("mse+relmse+smape", lambda: (M.mse(img, ref, mask), M.relmse(img, ref, mask),
-                                                     M.smape(img, ref, mask))),
-                     ("dssim", lambda: M.dssim(img, ref, mask, scale=s)),
-                     ("ciede2000", lambda: M.ciede2000(img, ref, mask, scale=s)),
-                     ("flip", lambda: M.flip(img, ref, mask, exposure)),
-                     ("compute_all", lambda: M.compute_all(img, ref, mask, exposure, s))):
+    prepared = M.PreparedReference(ref, mask)
+    prepared.flip_features()
+    img64 = img.astype(np.float64)
+    x, img_b = img64[mask], np.where(mask[..., None], img64, 0.0)
+    print(f"  combined ({M._flip_exposures(*prepared.exposure)} FLIP exposures), per phase:")
+    for name, fn in (("reference prepared", lambda: M.PreparedReference(ref, mask).flip_features()),
+                     ("image checks", lambda: M._checked_image(img, prepared)),
+                     ("mse+relmse+smape", lambda: (M._mse(x, prepared.r), M._relmse(x, prepared.r, prepared.relmse_eps),
+                                                   M._smape(x, prepared.r, prepared.smape_eps))),
+                     ("dssim", lambda: M._dssim_of_luma(M._display_luma(img_b, prepared.scale), prepared.ssim, mask)),
+                     ("ciede2000", lambda: M._ciede2000_of_lab(M._display_lab(x, prepared.scale), prepared.lab)),
+                     ("flip", lambda: M.flip_covered_errors(img, prepared)),
+                     ("compute_all", lambda: M.compute_all(img, ref, mask, prepared=prepared))):
         cpu, wall = timed(fn)
-        print(f"  combined: {name:18s} cpu {1000 * cpu:7.1f} ms  wall {1000 * wall:7.1f} ms")
+        print(f"    {name:20s} cpu {1000 * cpu:7.1f} ms  wall {1000 * wall:7.1f} ms")
 
 
 if __name__ == "__main__":

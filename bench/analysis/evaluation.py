@@ -57,20 +57,28 @@ the absolute columns have none.
 Memo: with `memo_dir`, each comparison's columns are stored under the sha256 of its inputs (the
 method image, the reference, the mask) and of the metric code, and read back instead of being
 recomputed: the shared direct image of a view is judged once for all its methods, and a re-run
-whose images and references are unchanged computes nothing (HDR-FLIP is most of a row's metric
-cost: ~0.1 s per exposure per core at 320x180, 2 to 11 exposures a comparison on the
-validation views).
+whose images and references are unchanged computes nothing.
+
+Cost: the reference's side of the metrics (metrics.PreparedReference, with its half of HDR-FLIP)
+is kept for the next rows (`prepared_reference`: the runner judges a view's rows one after
+another), and each comparison's compiled HDR-FLIP (one OpenMP thread) and CIEDE2000 run on two
+threads of their own (`_worker`) while the caller's thread computes the rest: the compiled FLIP
+releases the GIL throughout, numpy in its array loops, so a row keeps two cores busy. HDR-FLIP
+is still the largest part: ~9-11 ms per exposure and core for the image's half at 320x180, 2 to
+11 exposures a comparison on the validation views.
 """
 from __future__ import annotations
 
 import hashlib
 import json
 import os
+from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor, wait
 from pathlib import Path
 
 import numpy as np
 
-from bench.analysis import metrics
+from bench.analysis import flip_native, metrics
 from bench.protocol.versioning import hash_files
 from bench.protocol.vocabulary import (COMPARISONS, DECOMPOSITION_COMPONENTS, DECOMPOSITION_METRICS, IMAGE_COMPONENTS,
                                        frame_stat_image, interval_column, metric_column)
@@ -89,9 +97,11 @@ _CODE_HASH: list = []
 
 
 def _code_hash() -> str:
-    """Hash of the metric code (prose excluded): a change to it invalidates every memo entry."""
+    """Hash of the metric code (prose excluded; the compiled FLIP's sources as text): a change to it
+    invalidates every memo entry."""
     if not _CODE_HASH:
-        _CODE_HASH.append(hash_files([Path(__file__), Path(metrics.__file__)]))
+        _CODE_HASH.append(hash_files([Path(__file__), Path(metrics.__file__), Path(flip_native.__file__),
+                                      *flip_native.SOURCES]))
     return _CODE_HASH[0]
 
 
@@ -129,6 +139,44 @@ def _memo_write(memo_dir, key: str, values: dict) -> None:
         pass  # a memo that cannot be written is only a lost shortcut
 
 
+PREPARED_CACHE_BYTES = 512 * 2 ** 20   # a view's four references at 320x180 take 40-85 MB (2-12 FLIP exposures)
+_PREPARED: OrderedDict = OrderedDict()   # key -> metrics.PreparedReference, least recently used first
+
+
+def prepared_reference(reference: np.ndarray, mask: np.ndarray) -> metrics.PreparedReference:
+    """The reference's side of the metrics (metrics.PreparedReference), kept for the next rows: the
+    runner judges a view's rows one after another against the same references and mask, so all but
+    the first reuse it. Keyed by the bytes of reference and mask; bounded by PREPARED_CACHE_BYTES."""
+    reference, mask = np.ascontiguousarray(reference), np.ascontiguousarray(mask)
+    h = hashlib.blake2b(digest_size=20)
+    for arr in (reference, mask):
+        h.update(f"{arr.shape}|{arr.dtype.str}|".encode())
+        h.update(memoryview(arr).cast("B"))
+    key = h.hexdigest()
+    prepared = _PREPARED.pop(key, None)
+    if prepared is None:
+        prepared = metrics.PreparedReference(reference, mask)
+    _PREPARED[key] = prepared
+    while _PREPARED and sum(p.nbytes for p in _PREPARED.values()) > PREPARED_CACHE_BYTES:
+        _PREPARED.popitem(last=False)   # the oldest first; one too big for the bound is not kept
+    return prepared
+
+
+_WORKERS: dict = {}   # (pid, name) -> a thread pool of one thread
+
+
+def _worker(name: str) -> ThreadPoolExecutor:
+    """A thread of its own for one costly part of the metrics: "flip" (the compiled HDR-FLIP, which
+    releases the GIL; one OpenMP thread there) and "colour" (CIEDE2000, numpy array loops that
+    release it). With the caller's thread they keep two cores busy. The colour worker is the only
+    thread entering warnings.catch_warnings (not thread-safe) while they run. Per process: a
+    forked child makes its own."""
+    key = (os.getpid(), name)
+    if key not in _WORKERS:
+        _WORKERS[key] = ThreadPoolExecutor(max_workers=1, thread_name_prefix=f"gibench-{name}")
+    return _WORKERS[key]
+
+
 def evaluate_row(images: dict, refs: dict, memo_dir=None, ref_variances: dict | None = None,
                  frame_stats: dict | None = None, error_frames: int = 1) -> dict:
     """Error columns of a row's images (`images`: IMAGE_COMPONENTS) against the references
@@ -140,7 +188,7 @@ def evaluate_row(images: dict, refs: dict, memo_dir=None, ref_variances: dict | 
     if missing:
         raise ValueError(f"evaluate_row: method image(s) {', '.join(missing)} missing")
     mask = coverage_mask(images, refs)
-    out = {}
+    jobs = []   # (column, method image, reference, memo key, memoised values or None)
     for column, (image_name, ref_parts) in COMPARISONS.items():
         parts = [refs.get(p) for p in ref_parts]
         if any(p is None for p in parts):
@@ -148,19 +196,34 @@ def evaluate_row(images: dict, refs: dict, memo_dir=None, ref_variances: dict | 
         reference = sum(parts)
         key = _memo_key(column, np.asarray(images[image_name], np.float32), np.asarray(reference, np.float32), mask) \
             if memo_dir is not None else ""
-        values = _memo_read(memo_dir, key)
-        if values is None:
-            scores = metrics.compute_all(images[image_name], reference, mask,
-                                         flip_exposure=metrics.flip_exposure_range(reference, mask),
-                                         tonemap_scale_value=metrics.tonemap_scale(reference, mask))
-            values = {f"{name}.{column}": float(value) for name, value in scores.items()}
-            ratio = mean_ratio(images[image_name], reference, mask)
-            if np.isfinite(ratio):  # a black reference has no ratio: the column is left out
-                values[f"mean_ratio.{column}"] = ratio
-            _memo_write(memo_dir, key, values)
-        out.update(values)
-    if frame_stats is not None and int(error_frames) > 1:
-        out.update(_decomposition_columns(frame_stats, refs, ref_variances or {}, mask, int(error_frames), memo_dir))
+        jobs.append((column, images[image_name], reference, key, _memo_read(memo_dir, key)))
+    prepared = {job[0]: prepared_reference(job[2], mask) for job in jobs if job[4] is None}
+    elsewhere, running = {column: {} for column in prepared}, []
+    if flip_native.library() is not None:   # the two costliest parts on two more threads, this one does the rest
+        for column, image, _, _, _ in jobs:
+            if column in prepared and prepared[column].covered:
+                flip = _worker("flip").submit(metrics.flip_covered_errors, image, prepared[column], 1)
+                colour = _worker("colour").submit(metrics.ciede2000_against, image, prepared[column])
+                running += [flip, colour]
+                elsewhere[column] = {"flip": flip.result, "ciede2000": colour.result}
+    out, decomposed = {}, {}
+    try:
+        if frame_stats is not None and int(error_frames) > 1:   # first: this thread's share while the others run
+            decomposed = _decomposition_columns(frame_stats, refs, ref_variances or {}, mask, int(error_frames),
+                                                memo_dir)
+        for column, image, reference, key, values in jobs:
+            if values is None:
+                p = prepared[column]
+                scores = metrics.compute_all(image, reference, mask, prepared=p, elsewhere=elsewhere[column])
+                values = {f"{name}.{column}": float(value) for name, value in scores.items()}
+                ratio = mean_ratio(image, reference, mask, reference_mean=p.covered_mean)
+                if np.isfinite(ratio):  # a black reference has no ratio: the column is left out
+                    values[f"mean_ratio.{column}"] = ratio
+                _memo_write(memo_dir, key, values)
+            out.update(values)
+    finally:
+        wait(running)   # nothing of this row still runs when the next one starts (or an error propagates)
+    out.update(decomposed)
     return out
 
 
@@ -213,9 +276,13 @@ def decomposition(mean, var, flicker, reference, ref_variance, mask, frames: int
     return out
 
 
-def mean_ratio(image: np.ndarray, reference: np.ndarray, mask: np.ndarray) -> float:
-    """Mean of `image` over mean of `reference` on the masked pixels; NaN when the reference is black."""
-    ref_mean = float(np.asarray(reference, dtype=np.float64)[mask].mean()) if mask.any() else 0.0
+def mean_ratio(image: np.ndarray, reference: np.ndarray, mask: np.ndarray, reference_mean: float | None = None) -> float:
+    """Mean of `image` over mean of `reference` on the masked pixels; NaN when the reference is black.
+    `reference_mean`: that mean of the reference, when already known (metrics.PreparedReference)."""
+    if reference_mean is not None:
+        ref_mean = reference_mean
+    else:
+        ref_mean = float(np.asarray(reference, dtype=np.float64)[mask].mean()) if mask.any() else 0.0
     if not ref_mean > 0.0:
         return float("nan")
     return float(np.asarray(image, dtype=np.float64)[mask].mean()) / ref_mean

@@ -22,10 +22,14 @@ MSE / 0.01 for indirect light.) An all-zero reference falls back to the absolute
 Spatial metrics (dssim, FLIP) see every pixel outside the mask as black in both images (what
 background is), so nothing outside the mask leaks into their windows.
 
-Cost: HDR-FLIP is most of it (flip-evaluator runs max(2, ceil(stop - start)) LDR-FLIP passes,
-~0.1 s each per core at 320x180). `compute_all` checks its inputs once and shares them across
-the metrics, and FLIP's map is computed only on the box where it can be non-zero
-(`_flip_covered`); both give exactly the values of the metric functions one by one.
+Cost: HDR-FLIP is most of it (max(2, ceil(stop - start)) LDR-FLIP passes per comparison). It runs
+on FLIP.h compiled here (bench.analysis.flip_native; the flip-evaluator wheel without a compiler,
+same values, ~4x slower), split in the reference's half and the image's: everything of the
+reference alone (`PreparedReference`: covered pixels, epsilons, display transforms, its display
+luminance's SSIM terms and its Lab, its FLIP half per exposure) is computed once and reused for
+every image judged against it, and FLIP's map only on the box where it can be non-zero
+(`_flip_covered`). All give exactly the values of the metric functions one by one, which call the
+libraries plainly (tests/test_metrics_speed.py, tests/test_flip_native.py).
 """
 from __future__ import annotations
 
@@ -33,6 +37,8 @@ import math
 import warnings
 
 import numpy as np
+
+from bench.analysis import flip_native
 
 EPS_RELMSE = 0.01          # relative MSE: (x - r)^2 / (r^2 + EPS_RELMSE * mean(r^2)) (Rousselle/Zwicker's 0.01, in units of the reference's level)
 EPS_SMAPE = 0.01           # SMAPE: |x - r| / (|x| + |r| + EPS_SMAPE * mean|r|) (Vogels et al. 2018's 0.01, same)
@@ -195,16 +201,56 @@ def _srgb_encode(linear: np.ndarray) -> np.ndarray:
     return np.asarray(colour.CCTF_ENCODINGS["sRGB"](linear), dtype=np.float64)
 
 
-def _dssim(img_b: np.ndarray, ref_b: np.ndarray, m: np.ndarray, s: float) -> float:
-    """dssim of images already black outside the (non-empty) mask `m`, at exposure `s`."""
-    from skimage.metrics import structural_similarity
+def _display_luma(x_b: np.ndarray, s: float) -> np.ndarray:
+    """What dssim compares: the sRGB-encoded luminance of the tone-mapped image (black outside the mask)."""
+    return _srgb_encode(tonemap(x_b, s) @ LUMA)
+
+
+def _check_ssim_size(m: np.ndarray) -> None:
     h, w = m.shape
     if min(h, w) < SSIM_WINDOW:
         raise ValueError(f"dssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {w}x{h}")
-    y_img = _srgb_encode(tonemap(img_b, s) @ LUMA)
-    y_ref = _srgb_encode(tonemap(ref_b, s) @ LUMA)
-    _, ssim_map = structural_similarity(y_ref, y_img, win_size=SSIM_WINDOW, data_range=1.0, full=True)
-    return float(1.0 - np.mean(ssim_map[m]))
+
+
+class _SsimReferenceSide:
+    """scikit-image's structural_similarity(y_ref, y_img, win_size=SSIM_WINDOW, data_range=1, full=True)
+    split at its terms of the reference alone (its im1), kept for every image judged against it; the
+    image's side below repeats the library's operations in its order (the tests hold the two to the
+    library call, bit for bit)."""
+    COV_NORM = SSIM_WINDOW ** 2 / (SSIM_WINDOW ** 2 - 1)   # sample covariance, the library's default
+    C1, C2 = (0.01 * 1.0) ** 2, (0.03 * 1.0) ** 2          # (K1 R)^2, (K2 R)^2 with R = data_range = 1
+
+    def __init__(self, y_ref: np.ndarray):
+        from scipy.ndimage import uniform_filter
+        self.y = y_ref.astype(np.float64, copy=False)
+        self.ux = uniform_filter(self.y, size=SSIM_WINDOW)
+        self.vx = self.COV_NORM * (uniform_filter(self.y * self.y, size=SSIM_WINDOW) - self.ux * self.ux)
+        self.two_ux = 2 * self.ux
+        self.ux2 = self.ux ** 2
+
+    def ssim_map(self, y_img: np.ndarray) -> np.ndarray:
+        from scipy.ndimage import uniform_filter
+        im2 = y_img.astype(np.float64, copy=False)
+        uy = uniform_filter(im2, size=SSIM_WINDOW)
+        uyy = uniform_filter(im2 * im2, size=SSIM_WINDOW)
+        uxy = uniform_filter(self.y * im2, size=SSIM_WINDOW)
+        vy = self.COV_NORM * (uyy - uy * uy)
+        vxy = self.COV_NORM * (uxy - self.ux * uy)
+        a1, a2 = self.two_ux * uy + self.C1, 2 * vxy + self.C2
+        b1, b2 = self.ux2 + uy ** 2 + self.C1, self.vx + vy + self.C2
+        return (a1 * a2) / (b1 * b2)
+
+
+def _dssim_of_luma(y_img: np.ndarray, y_ref, m: np.ndarray) -> float:
+    """1 - mean SSIM over `m`; `y_ref` the reference's display luminance or its _SsimReferenceSide."""
+    side = y_ref if isinstance(y_ref, _SsimReferenceSide) else _SsimReferenceSide(y_ref)
+    return float(1.0 - np.mean(side.ssim_map(y_img)[m]))
+
+
+def _dssim(img_b: np.ndarray, ref_b: np.ndarray, m: np.ndarray, s: float) -> float:
+    """dssim of images already black outside the (non-empty) mask `m`, at exposure `s`."""
+    _check_ssim_size(m)
+    return _dssim_of_luma(_display_luma(img_b, s), _display_luma(ref_b, s), m)
 
 
 def dssim(image, reference, mask=None, scale: float | None = None) -> float:
@@ -212,9 +258,7 @@ def dssim(image, reference, mask=None, scale: float | None = None) -> float:
     img, ref, m = _inputs(image, reference, mask)
     if not m.any():
         return math.nan
-    h, w = m.shape
-    if min(h, w) < SSIM_WINDOW:
-        raise ValueError(f"dssim needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {w}x{h}")
+    _check_ssim_size(m)
     s = tonemap_scale(ref, m) if scale is None else _check_scale(scale)
     return _dssim(_black_outside(img, m), _black_outside(ref, m), m, s)
 
@@ -226,15 +270,24 @@ def _lab(linear_display: np.ndarray) -> np.ndarray:
     return colour.XYZ_to_Lab(xyz, srgb.whitepoint)
 
 
-def _ciede2000(x: np.ndarray, r: np.ndarray, s: float) -> float:
-    """Mean CIEDE2000 of the covered pixels x (image) and r (reference), Nx3, at exposure `s`."""
-    from colour.difference import delta_E_CIE2000  # what colour.delta_E(method="CIE 2000") calls
+def _display_lab(x: np.ndarray, s: float) -> np.ndarray:
+    """CIE Lab (D65) of the tone-mapped covered pixels x (Nx3): what CIEDE2000 compares."""
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # colour's domain-range notices are not about our data
-        lab_img = _lab(tonemap(x, s))
-        lab_ref = _lab(tonemap(r, s))
+        return _lab(tonemap(x, s))
+
+
+def _ciede2000_of_lab(lab_img: np.ndarray, lab_ref: np.ndarray) -> float:
+    from colour.difference import delta_E_CIE2000  # what colour.delta_E(method="CIE 2000") calls
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
         de = delta_E_CIE2000(lab_ref, lab_img)
     return float(np.mean(de))
+
+
+def _ciede2000(x: np.ndarray, r: np.ndarray, s: float) -> float:
+    """Mean CIEDE2000 of the covered pixels x (image) and r (reference), Nx3, at exposure `s`."""
+    return _ciede2000_of_lab(_display_lab(x, s), _display_lab(r, s))
 
 
 def ciede2000(image, reference, mask=None, scale: float | None = None) -> float:
@@ -304,20 +357,31 @@ def weighted_median(values: np.ndarray) -> float:
     return float(v[min(idx, v.size - 1)])
 
 
+def _flip_exposures(start: float, stop: float) -> int:
+    return max(2, math.ceil(stop - start))   # FLIP's own count for a user-given range
+
+
 def _flip_map(ref32: np.ndarray, img32: np.ndarray, start: float, stop: float) -> np.ndarray:
-    """flip-evaluator's HDR-FLIP map (float64) of two HxWx3 float32 images, exposures start..stop."""
+    """HDR-FLIP's map (float64) of two HxWx3 float32 images, exposures start..stop: FLIP.h compiled
+    here (bench.analysis.flip_native) or, without a compiler, the flip-evaluator wheel (the same values)."""
+    if flip_native.library() is not None:
+        err = flip_native.flip_map(ref32, img32, FLIP_PPD, start, stop, _flip_exposures(start, stop))
+        return err.astype(np.float64)
     import flip_evaluator
     params = {"ppd": FLIP_PPD, "startExposure": start, "stopExposure": stop,
-              "numExposures": max(2, math.ceil(stop - start)), "tonemapper": FLIP_TONEMAPPER}
+              "numExposures": _flip_exposures(start, stop), "tonemapper": FLIP_TONEMAPPER}
     err, _, _ = flip_evaluator.evaluate(np.ascontiguousarray(ref32), np.ascontiguousarray(img32), "HDR",
                                         applyMagma=False, computeMeanError=False, parameters=params)
     return np.asarray(err, dtype=np.float64).reshape(ref32.shape[:2])
 
 
+def _flip_input(x_b: np.ndarray) -> np.ndarray:
+    """What FLIP is given: float32, negative radiance clamped to 0 (the image black outside the mask)."""
+    return np.ascontiguousarray(np.clip(x_b, 0.0, None), dtype=np.float32)
+
+
 def _flip_inputs(img_b: np.ndarray, ref_b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """What FLIP is given: float32, negative radiance clamped to 0 (images black outside the mask)."""
-    return (np.ascontiguousarray(np.clip(ref_b, 0.0, None), dtype=np.float32),
-            np.ascontiguousarray(np.clip(img_b, 0.0, None), dtype=np.float32))
+    return _flip_input(ref_b), _flip_input(img_b)
 
 
 def _box(rows: np.ndarray, cols: np.ndarray):
@@ -326,27 +390,48 @@ def _box(rows: np.ndarray, cols: np.ndarray):
     return None if ys.size == 0 else (int(ys[0]), int(ys[-1]) + 1, int(xs[0]), int(xs[-1]) + 1)
 
 
-def _flip_covered(img_b: np.ndarray, ref_b: np.ndarray, m: np.ndarray, start: float, stop: float) -> np.ndarray:
+def _flip_boxes(img32: np.ndarray, ref32: np.ndarray, m: np.ndarray):
+    """(inner, crop) boxes [y0, y1, x0, x1) of `_flip_covered`, or None when every covered pixel is 0."""
+    differ = np.any(img32 != ref32, axis=2)
+    d, c = _box(differ.any(axis=1), differ.any(axis=0)), _box(m.any(axis=1), m.any(axis=0))
+    h, w, r = m.shape[0], m.shape[1], FLIP_REACH
+    if d is None or c is None:
+        return None
+    y0, y1 = max(c[0], d[0] - r), min(c[1], d[1] + r)    # covered pixels that may be non-zero
+    x0, x1 = max(c[2], d[2] - r), min(c[3], d[3] + r)
+    if not (y0 < y1 and x0 < x1):
+        return None
+    return (y0, y1, x0, x1), (max(0, y0 - r), min(h, y1 + r), max(0, x0 - r), min(w, x1 + r))
+
+
+def _flip_covered(img_b: np.ndarray, ref_b: np.ndarray, m: np.ndarray, start: float, stop: float,
+                  reference_features=None, ref32: np.ndarray | None = None, threads: int = 0) -> np.ndarray:
     """HDR-FLIP's error at the covered pixels (the full map's values at `m`), computed on a crop.
 
     FLIP's error at a pixel depends only on the two images within FLIP_REACH pixels of it (separable
     filters clamped at the image edge, then per-pixel arithmetic and the maximum over exposures),
     and is exactly 0 where they are equal throughout that window (colour and feature differences
     are 0, and 0^p = 0). So the map is computed only on the box of covered pixels within
-    FLIP_REACH of a pixel where the images differ, widened by FLIP_REACH (up to the image edge):
-    every pixel of that box sees the same window, hence the same value, as in the full map, and
-    the covered pixels outside it are 0, as there. An image equal to its reference costs nothing.
-    """
-    ref32, img32 = _flip_inputs(img_b, ref_b)
+    FLIP_REACH of a pixel where the images differ (the inner box), widened by FLIP_REACH (up to the
+    image edge): every pixel of the inner box sees the same window, hence the same value, as in the
+    full map, the rest of the crop is 0 in both, and the covered pixels outside it are 0, as there.
+    An image equal to its reference costs nothing.
+
+    `reference_features` (a callable returning flip_native.reference_features of the whole of
+    `ref_b`'s FLIP input at these exposures) lets the compiled FLIP reuse the reference's half: the
+    test image's half is then computed on the crop and the inner box is kept (its filter windows lie
+    in the crop, so both halves there are the whole image's). `ref32`: `ref_b`'s FLIP input, if at hand;
+    `threads`: the compiled FLIP's OpenMP threads (0: its default)."""
+    ref32, img32 = _flip_input(ref_b) if ref32 is None else ref32, _flip_input(img_b)
     out = np.zeros(m.shape, dtype=np.float64)
-    differ = np.any(img32 != ref32, axis=2)
-    d, c = _box(differ.any(axis=1), differ.any(axis=0)), _box(m.any(axis=1), m.any(axis=0))
-    h, w, r = m.shape[0], m.shape[1], FLIP_REACH
-    if d is not None and c is not None:
-        y0, y1 = max(c[0], d[0] - r), min(c[1], d[1] + r)    # covered pixels that may be non-zero
-        x0, x1 = max(c[2], d[2] - r), min(c[3], d[3] + r)
-        if y0 < y1 and x0 < x1:
-            y0, y1, x0, x1 = max(0, y0 - r), min(h, y1 + r), max(0, x0 - r), min(w, x1 + r)
+    boxes = _flip_boxes(img32, ref32, m)
+    if boxes is not None:
+        (iy0, iy1, ix0, ix1), (y0, y1, x0, x1) = boxes
+        if reference_features is not None and flip_native.library() is not None:
+            crop = flip_native.map_against_reference(reference_features(), img32[y0:y1, x0:x1], y0, x0, FLIP_PPD,
+                                                     start, stop, threads)
+            out[iy0:iy1, ix0:ix1] = crop[iy0 - y0:iy1 - y0, ix0 - x0:ix1 - x0]
+        else:
             out[y0:y1, x0:x1] = _flip_map(ref32[y0:y1, x0:x1], img32[y0:y1, x0:x1], start, stop)
     return out[m]
 
@@ -370,23 +455,109 @@ def flip(image, reference, mask=None, exposure: tuple | None = None) -> tuple[fl
 
 
 # ---------------------------------------------------------------------------- all at once
+class PreparedReference:
+    """What the metrics derive from one reference and mask alone (checked arrays, covered pixels,
+    epsilons, display transforms, the reference's display luminance and Lab, its half of HDR-FLIP),
+    computed once and shared by every image judged against them (`compute_all_against`;
+    bench.analysis.evaluation keeps those of a view's references across its rows)."""
+
+    def __init__(self, reference, mask=None, flip_exposure: tuple | None = None,
+                 tonemap_scale_value: float | None = None):
+        ref = _as_rgb(reference, "reference")
+        m = _as_mask(mask, ref.shape)
+        self.ref, self.mask, self.covered = ref, m, bool(m.any())
+        if not self.covered:
+            return
+        self.scale = tonemap_scale(ref, m) if tonemap_scale_value is None else _check_scale(tonemap_scale_value)
+        self.exposure = _check_exposure(flip_exposure_range(ref, m) if flip_exposure is None else flip_exposure)
+        self.r = ref[m]
+        self.relmse_eps, self.smape_eps = _relmse_epsilon(self.r), _smape_epsilon(self.r)
+        self.ref_b = _black_outside(ref, m)
+        self.ref32 = _flip_input(self.ref_b)
+        self.lab = _display_lab(self.r, self.scale)
+        small = min(m.shape) < SSIM_WINDOW   # dssim raises for such images, when asked
+        self.ssim = None if small else _SsimReferenceSide(_display_luma(self.ref_b, self.scale))
+        self._flip_features = None
+
+    @property
+    def covered_mean(self) -> float:
+        """Mean of the reference over the covered pixels and channels (0 if none is covered)."""
+        return float(self.r.mean()) if self.covered else 0.0
+
+    def flip_features(self, threads: int = 0) -> np.ndarray:
+        """The reference's half of the compiled HDR-FLIP on the whole image (computed on first use)."""
+        if self._flip_features is None:
+            start, stop = self.exposure
+            self._flip_features = flip_native.reference_features(self.ref32, FLIP_PPD, start, stop,
+                                                                 _flip_exposures(start, stop), threads)
+        return self._flip_features
+
+    @property
+    def nbytes(self) -> int:
+        arrays = [v for v in vars(self).values() if isinstance(v, np.ndarray)]
+        arrays += [v for v in vars(self.ssim).values() if isinstance(v, np.ndarray)] if self.covered and self.ssim else []
+        return sum(a.nbytes for a in arrays)
+
+
+def _checked_image(image, prepared: PreparedReference) -> np.ndarray:
+    img = _as_rgb(image, "image")
+    if img.shape != prepared.ref.shape:
+        raise ValueError(f"image has shape {img.shape} but reference has shape {prepared.ref.shape}")
+    return img
+
+
+def flip_covered_errors(image, prepared: PreparedReference, threads: int = 0) -> np.ndarray:
+    """HDR-FLIP's error at the covered pixels of `image` against `prepared` (`_flip_covered`, reusing
+    the reference's half); `threads`: the compiled FLIP's OpenMP threads (0: its default)."""
+    img, p = _checked_image(image, prepared), prepared
+    return _flip_covered(_black_outside(img, p.mask), p.ref_b, p.mask, *p.exposure, ref32=p.ref32,
+                         reference_features=lambda: p.flip_features(threads), threads=threads)
+
+
+def ciede2000_against(image, prepared: PreparedReference) -> float:
+    """The ciede2000 of `image` against the covered reference `prepared`."""
+    img, p = _checked_image(image, prepared), prepared
+    return _ciede2000_of_lab(_display_lab(img[p.mask], p.scale), p.lab)
+
+
+def compute_all_against(image, prepared: PreparedReference, elsewhere: dict | None = None) -> dict:
+    """`compute_all` of `image` against the reference and mask `prepared` was built from.
+    `elsewhere` may hold zero-argument callables computing parts meanwhile on other threads
+    (bench.analysis.evaluation): "flip" returns `flip_covered_errors(image, prepared)`, "ciede2000"
+    returns `ciede2000_against(image, prepared)`."""
+    img = _checked_image(image, prepared)
+    if not prepared.covered:
+        return {name: math.nan for name in METRICS}
+    m, r, p, elsewhere = prepared.mask, prepared.r, prepared, elsewhere or {}
+    x = img[m]
+    img_b = _black_outside(img, m)
+    flip_errors = elsewhere.get("flip") or (lambda: _flip_covered(img_b, p.ref_b, m, *p.exposure, ref32=p.ref32,
+                                                                   reference_features=p.flip_features))
+    ciede = elsewhere.get("ciede2000") or (lambda: _ciede2000_of_lab(_display_lab(x, p.scale), p.lab))
+    if p.ssim is None:
+        _check_ssim_size(m)
+    out = {"mse": _mse(x, r), "relmse": _relmse(x, r, p.relmse_eps), "smape": _smape(x, r, p.smape_eps),
+           "dssim": _dssim_of_luma(_display_luma(img_b, p.scale), p.ssim, m), "ciede2000": ciede()}
+    err = flip_errors()
+    out["flip_mean"], out["flip_median"] = float(err.mean()), weighted_median(err)
+    return {name: out[name] for name in METRICS}
+
+
 def compute_all(image, reference, mask=None, flip_exposure: tuple | None = None,
-                tonemap_scale_value: float | None = None) -> dict:
+                tonemap_scale_value: float | None = None, prepared: PreparedReference | None = None,
+                elsewhere: dict | None = None) -> dict:
     """Every metric of METRICS, keyed by name. `flip_exposure` and `tonemap_scale_value` default
-    to the reference's own (`flip_exposure_range`, `tonemap_scale`).
+    to the reference's own (`flip_exposure_range`, `tonemap_scale`). `prepared`, if given, is
+    `PreparedReference(reference, mask, flip_exposure, tonemap_scale_value)` made earlier (the
+    arguments are then not read again), and `elsewhere` that of `compute_all_against`.
 
     The same values as the metric functions one by one, with the inputs checked once and shared:
-    the covered pixels (per-pixel metrics, CIEDE2000) and the images black outside the mask
-    (dssim, FLIP)."""
-    img, ref, m = _inputs(image, reference, mask)
-    if not m.any():
-        return {name: math.nan for name in METRICS}
-    s = tonemap_scale(ref, m) if tonemap_scale_value is None else _check_scale(tonemap_scale_value)
-    start, stop = _check_exposure(flip_exposure_range(ref, m) if flip_exposure is None else flip_exposure)
-    x, r = img[m], ref[m]
-    img_b, ref_b = _black_outside(img, m), _black_outside(ref, m)
-    err = _flip_covered(img_b, ref_b, m, start, stop)
-    out = {"mse": _mse(x, r), "relmse": _relmse(x, r, _relmse_epsilon(r)), "smape": _smape(x, r, _smape_epsilon(r)),
-           "dssim": _dssim(img_b, ref_b, m, s), "flip_mean": float(err.mean()), "flip_median": weighted_median(err),
-           "ciede2000": _ciede2000(x, r, s)}
-    return {name: out[name] for name in METRICS}
+    the covered pixels (per-pixel metrics, CIEDE2000), the images black outside the mask (dssim,
+    FLIP) and everything of the reference alone (`PreparedReference`)."""
+    if prepared is not None:
+        return compute_all_against(image, prepared, elsewhere)
+    ref = _as_rgb(reference, "reference")
+    img = _as_rgb(image, "image")
+    if img.shape != ref.shape:
+        raise ValueError(f"image has shape {img.shape} but reference has shape {ref.shape}")
+    return compute_all_against(img, PreparedReference(ref, mask, flip_exposure, tonemap_scale_value))
