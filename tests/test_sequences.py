@@ -200,3 +200,18 @@ def test_visibility_gates_keeps_its_topology_when_only_the_camera_moves(gl_ctx, 
     run_sequence(gl_ctx, gates.VisibilityGates, load_sequence("cornell_spot_moving_block", frames=3, rest=0), "main",
                  W, H, {"vpl_count": 64}, shadow_resolution=256)
     assert len(built) == 3                                 # frame 0, then each frame the block moved
+
+
+@pytest.mark.gl
+def test_a_budgeted_run_with_scenes_and_sequences(tmp_path, monkeypatch):
+    """Under a budget the plan holds the scenes' rows and the sequences' rows; both run."""
+    from bench.run import serial
+    from bench.run.config import RunConfig
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    cfg = RunConfig(scenes=[make_open_box()], methods=["direct"], width=W, height=H, frames=1, warmup=1,
+                    references=False, error_frames=1, progress=False, out=tmp_path / "run", budget_s=3600.0,
+                    sequences=["rooms_light_sweep"], sequence_frames=2, sequence_rest=0, sequence_width=W,
+                    sequence_height=H)
+    df, _ = serial.run(cfg, log=lambda m: None)
+    assert sorted(df["scene"]) == ["open_box", "rooms_light_sweep", "rooms_light_sweep"]
+    assert set(df["status"]) == {"ok"}

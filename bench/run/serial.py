@@ -162,7 +162,8 @@ class Runner:
         self.plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=self.resolved, sequences=self.sequences)
         if cfg.budget_s is not None:
             budget.apply_budget(self.plan, cfg.budget_s)
-            jobs = self.jobs = self.plan.ordered_jobs()   # defaults first: a short budget cuts the middles
+            # defaults first: a short budget cuts the middles (the sequence rows run after, on their own)
+            jobs = self.jobs = [j for j in self.plan.ordered_jobs() if j.scene in scenes]
         if cfg.budget_s is not None or cfg.progress:   # a quiet run (--no-progress) says only what goes wrong
             self.log(f"gibench: plan: {self.plan.summary()}")
         write_manifest(self.run_dir, ctx, cfg, scenes, facts, plan=self.plan.to_json())
