@@ -2,7 +2,7 @@
 # Set up everything (apt packages, .venv), run the default benchmark and build its HTML report.
 # The default run: procedural and real scenes (sponza, sibenik, conference, cornell_box) at
 # 320x180, every method's quality ladder (one time-vs-error curve per method and view), Mitsuba
-# references (cached), calibrated timing, within a 30-minute budget: the cost plan keeps every
+# references (cached), calibrated timing, within a 28-minute budget (30 with the report): the cost plan keeps every
 # method's defaults first, then the ladders' ends, then their middles, and lists what did not fit
 # as skipped (over budget); a second run takes the rows it rendered from the cache and goes on
 # with the others (`--budget none`: the whole corpus at once, `gibench run --plan` says how long).
@@ -15,5 +15,10 @@ export DRJIT_LIBLLVM_PATH="${DRJIT_LIBLLVM_PATH:-$(ls /usr/lib/x86_64-linux-gnu/
 # manylights with both VPL lobes: the report then shows, per scene, how far the flc lobe (what FLC
 # estimates without bias) is from the Lambertian bounce that Mitsuba computes. It sums every
 # triangle at every pixel, so it runs on the scenes of up to 20k triangles (the others: skipped, said so).
-.venv/bin/gibench run --budget 30m --param manylights.emission=lambert,flc --param manylights.max_triangles=20000 "$@"
+# the default budget, unless the arguments set one (--budget, or --quick's own)
+budget=(--budget 28m)
+for arg in "$@"; do
+  case "$arg" in --quick|--budget|--budget=*) budget=() ;; esac
+done
+.venv/bin/gibench run "${budget[@]}" --param manylights.emission=lambert,flc --param manylights.max_triangles=20000 "$@"
 .venv/bin/gibench report runs/latest
