@@ -39,7 +39,11 @@ def main(args) -> int:
     runs = [cost.run_phases(Path(r)) for r in args.runs]
     runs = [r for r in runs if r is not None]
     if runs:   # set-up (against the scenes' triangles) and metrics per pixel, from the runs' manifests
-        model.setup = cost.fit_linear([{"triangles": r["triangles"]} for r in runs], [r["setup_s"] for r in runs])
+        triangles = [max(r["triangles"], 1) for r in runs]
+        if max(triangles) >= 2 * min(triangles):
+            model.setup = cost.fit_linear([{"triangles": r["triangles"]} for r in runs], [r["setup_s"] for r in runs])
+        else:   # runs of one corpus size say nothing of how set-up grows with it: a constant
+            model.setup = cost.Linear(const=statistics.median(r["setup_s"] for r in runs))
         per_pixel = [r["metrics_s_per_pixel"] for r in runs if r.get("metrics_s_per_pixel")]
         if per_pixel:
             model.metrics_s_per_pixel = statistics.median(per_pixel)

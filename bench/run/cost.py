@@ -368,11 +368,14 @@ def fit_references(metas: list[dict]) -> tuple[dict, dict]:
 
 def run_phases(run_dir: Path) -> dict | None:
     """A run folder's set-up seconds and metrics seconds per judged row's pixel (its manifest's
-    phases and its table), as `record_history` keeps them; None without phases."""
+    phases and its table), as `record_history` keeps them; None without phases, or for a run made
+    before the cost plan existed (its set-up did not make one, its metrics were the slower ones)."""
     from bench.protocol import results as store
     try:
         manifest = json.loads((Path(run_dir) / "manifest.json").read_text())
         phases = manifest["phases_s"]
+        if "plan" not in manifest:
+            return None
         df = store.load_results(Path(run_dir))
     except (OSError, ValueError, KeyError):
         return None
