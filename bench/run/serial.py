@@ -118,6 +118,17 @@ class Runner:
             folder = plan.image_folder(job.method, params, load_method(job.method))
         return row_identity(row), str(Path("images") / scene.name / job.view / folder)
 
+    def _around_sequences(self, jobs: list) -> tuple:
+        """(the scenes' jobs before the sequence rows, those after). Under a budget the sequences are
+        defaults too: they run after the scenes' defaults and before the ladders, so a run that
+        falls behind its plan cuts ladders, not motion; otherwise every scene's job comes first."""
+        if self.cfg.budget_s is None or not self.sequences or self.plan is None:
+            return jobs, []
+        first = {(r.job.scene, r.job.view, r.job.method, r.job.index) for r in self.plan.rows if r.priority == 0}
+        before = [j for j in jobs if (j.scene, j.view, j.method, j.index) in first]
+        after = [j for j in jobs if (j.scene, j.view, j.method, j.index) not in first]
+        return before, after
+
     def _sequence_identities(self) -> list:
         """(row identity, image dir) of the sequence rows this run produces (the merge replaces them)."""
         out = []
@@ -186,10 +197,14 @@ class Runner:
         try:
             if cfg.scheduler or cfg.workers:
                 cluster.run_rows(self, ctx, scenes, jobs, renderer, resumable, references, progress)
+                self._release_gpu()
+                run_sequence_rows(self, ctx, renderer)   # scenes in motion, judged frame by frame as they render
             else:
-                self._run_serial(ctx, scenes, facts, jobs, renderer, resumable, references, progress)
-            self._release_gpu()
-            run_sequence_rows(self, ctx, renderer)   # scenes in motion, judged frame by frame as they render
+                before, after = self._around_sequences(jobs)
+                self._run_serial(ctx, scenes, facts, before, renderer, resumable, references, progress)
+                self._release_gpu()
+                run_sequence_rows(self, ctx, renderer)
+                self._run_serial(ctx, scenes, facts, after, renderer, resumable, references, progress)
         finally:
             if progress is not None:
                 progress.close()
