@@ -4,8 +4,9 @@
 # 320x180, every method's quality ladder (one time-vs-error curve per method and view), Mitsuba
 # references (cached), calibrated timing, within a 28-minute budget (30 with the report): the cost plan keeps every
 # method's defaults first, then the ladders' ends, then their middles, and lists what did not fit
-# as skipped (over budget); a second run takes the rows it rendered from the cache and goes on
-# with the others (`--budget none`: the whole corpus at once, `gibench run --plan` says how long).
+# as skipped (over budget). It chooses on cold costs: the same command keeps the same rows, a
+# second run takes them from the cache; `--budget 1h` or `--budget none` (the whole corpus,
+# `gibench run --plan` says how long) renders more.
 # Extra arguments go to `gibench run` (e.g. --quick for a first report within 5 minutes,
 # --res 640x360, --scenes cornell_spot).
 set -euo pipefail

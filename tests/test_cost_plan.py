@@ -228,3 +228,14 @@ def test_quick_is_a_five_minute_budget_over_the_default_corpus(monkeypatch):
     assert cli_run_config(monkeypatch, ["run", "--quick", "--budget", "2m"]).budget_s == 120.0
     assert cli_run_config(monkeypatch, ["run"]).budget_s is None
     assert cli_run_config(monkeypatch, ["run", "--quick", "--budget", "none"]).budget_s is None
+
+
+def test_a_budget_keeps_the_same_rows_when_the_cache_holds_them(tmp_path, fixed_costs):
+    """The budget chooses on cold costs: a second run of the same command keeps the same rows (from the
+    cache) and renders nothing new, rather than filling its budget with the rows the first left out."""
+    first, _ = serial.run(small_config(tmp_path, budget_s=1000.0), log=lambda m: None)
+    again, runner = serial.run(small_config(tmp_path, budget_s=1000.0, out=tmp_path / "again"), log=lambda m: None)
+    kept = lambda df: sorted((r["method"], r["params"]) for r in df.to_dict("records")  # noqa: E731
+                             if not str(r["status"]).startswith("skipped"))
+    assert kept(again) == kept(first) and len(kept(first)) == 2
+    assert runner.counts["ok"] == 0 and runner.counts["cached"] == 2

@@ -54,8 +54,9 @@ class PlannedRow:
     job: object                         # bench.run.plan.Job
     priority: int                       # 0 defaults, 1 ladder ends, 2 ladder middles
     status: str                         # "render", "cached", "guard", "over budget"
-    seconds: dict = field(default_factory=dict)   # row phase -> predicted seconds
+    seconds: dict = field(default_factory=dict)   # row phase -> predicted seconds (0 for a cached row's rendering)
     reason: str = ""
+    cold: float = 0.0                   # what rendering it costs with nothing cached: what a budget chooses by
 
     @property
     def total(self) -> float:
@@ -210,11 +211,6 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
         priority = rung_priority(job.params, job.index, counts[where], where in defaults)
         judged = cfg.references
         metrics_s = model.metrics_s_per_pixel * size.pixels if judged else 0.0
-        key = row_cache_key(scene, job.view, job.method, version, params, cfg, renderer, clock)
-        if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
-            planned.append(PlannedRow(job, priority, "cached", {"metrics": metrics_s}, "in the row cache"))
-            views_needed.setdefault((job.scene, job.view), False)
-            continue
         if terms is None:
             planned.append(PlannedRow(job, priority, "guard", {}, "its method's guard skips it (a declared limit)"))
             continue
@@ -223,19 +219,28 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
                             error_frames=int(cfg.error_frames), renders=renders,
                             images=len(row_image_names(cfg.error_frames)), judged=judged)
         seconds.pop("frame")
-        planned.append(PlannedRow(job, priority, "render", seconds))
+        key = row_cache_key(scene, job.view, job.method, version, params, cfg, renderer, clock)
+        if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
+            planned.append(PlannedRow(job, priority, "cached", {"metrics": metrics_s}, "in the row cache",
+                                      cold=sum(seconds.values())))
+            views_needed.setdefault((job.scene, job.view), False)
+            continue
+        planned.append(PlannedRow(job, priority, "render", seconds, cold=sum(seconds.values())))
         views_needed[(job.scene, job.view)] = True
     views = {}
     for (scene_name, view), renders in views_needed.items():
         size = CostFacts.of(facts[scene_name], cfg.width, cfg.height)
-        shared = model.shared_passes(size.pixels, size.triangles, cfg.frames, cfg.warmup, cfg.timing_budget_s) \
-            if renders else 0.0
+        shared = model.shared_passes(size.pixels, size.triangles, cfg.frames, cfg.warmup, cfg.timing_budget_s)
         first, refinement = reference_seconds(model, cfg, scenes[scene_name], view, size) if cfg.references else (0, 0)
-        views[(scene_name, view)] = {"shared_passes": shared, "references": first + refinement,
-                                     "references_refinement": refinement}
+        cold = sum(reference_seconds(model, cfg, scenes[scene_name], view, size, stored_nothing=True)) \
+            if cfg.references else 0.0
+        views[(scene_name, view)] = {"shared_passes": shared if renders else 0.0, "references": first + refinement,
+                                     "references_refinement": refinement, "cold_references": cold,
+                                     "cold_shared": shared}
     for row in planned:   # a view whose rows are all skipped by their guards costs nothing
         views.setdefault((row.job.scene, row.job.view), {"shared_passes": 0.0, "references": 0.0,
-                                                         "references_refinement": 0.0})
+                                                         "references_refinement": 0.0, "cold_references": 0.0,
+                                                         "cold_shared": 0.0})
     sequence_rows, sequence_views, sequence_facts = plan_sequences(cfg, sequences or {}, model, renderer)
     planned += sequence_rows
     views.update(sequence_views)
@@ -269,10 +274,6 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, rende
         except Exception as exc:
             rows.append(PlannedRow(job, 0, "guard", {}, f"fails to load ({' '.join(str(exc).split())[:80]})"))
             continue
-        if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
-            rows.append(PlannedRow(job, 0, "cached", {"sequences": 0.0}, "in the row cache"))
-            views.setdefault((name, view), {"shared_passes": 0.0, "references": 0.0, "references_refinement": 0.0})
-            continue
         if terms is None:
             rows.append(PlannedRow(job, 0, "guard", {}, "its method's guard skips it (a declared limit)"))
             continue
@@ -283,15 +284,22 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, rende
         lag = last_change(seq) < seq.frames - 1 and scfg.references
         total = (seq.frames * (one["frame"] + shared) + (1 + moved + lag) * one["precompute"] + lag * one["frame"]
                  + seq.frames * one["rows_other"] + (seq.frames + lag) * one["metrics"])
-        rows.append(PlannedRow(job, 0, "render", {"sequences": total}))
         if (name, view) not in views:
             refs = _sequence_reference_seconds(model, scfg, seq, view, size) if scfg.references else 0.0
-            views[(name, view)] = {"shared_passes": 0.0, "references": refs, "references_refinement": 0.0}
+            cold = _sequence_reference_seconds(model, scfg, seq, view, size, True) if scfg.references else 0.0
+            views[(name, view)] = {"shared_passes": 0.0, "references": refs, "references_refinement": 0.0,
+                                   "cold_references": cold, "cold_shared": 0.0}
+        if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
+            rows.append(PlannedRow(job, 0, "cached", {"sequences": 0.0}, "in the row cache", cold=total))
+            continue
+        rows.append(PlannedRow(job, 0, "render", {"sequences": total}, cold=total))
     return rows, views, list(facts_of.values())
 
 
-def _sequence_reference_seconds(model: cost.CostModel, scfg: RunConfig, seq, view: str, size: CostFacts) -> float:
-    """The per-frame references a sequence view still needs: one per distinct frame, at the cap."""
+def _sequence_reference_seconds(model: cost.CostModel, scfg: RunConfig, seq, view: str, size: CostFacts,
+                                stored_nothing: bool = False) -> float:
+    """The per-frame references a sequence view still needs: one per distinct frame, at the cap
+    (`stored_nothing`: as if none were cached)."""
     try:
         from reference.api import stored_reference
     except Exception:
@@ -301,18 +309,24 @@ def _sequence_reference_seconds(model: cost.CostModel, scfg: RunConfig, seq, vie
         scene = seq.frame(t)
         for c in REFERENCE_COMPONENTS:
             try:
-                stored = stored_reference(scene, view, scfg.width, scfg.height, c)["spp"]
+                stored = 0 if stored_nothing else stored_reference(scene, view, scfg.width, scfg.height, c)["spp"]
             except Exception:   # no Mitsuba: no reference is rendered
                 return 0.0
             total += model.reference_seconds(seq.base.name, c, size.pixels, cap, stored, cap)
     return total
 
 
-def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, size: CostFacts) -> tuple:
-    """(first pass, refinement) seconds of the Mitsuba samples one view's references still need."""
+def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, size: CostFacts,
+                      stored_nothing: bool = False) -> tuple:
+    """(first pass, refinement) seconds of the Mitsuba samples one view's references still need
+    (`stored_nothing`: as if the reference cache held none of them)."""
     try:
         from reference.api import stored_reference
-        stored = {c: stored_reference(scene, view, cfg.width, cfg.height, c)["spp"] for c in REFERENCE_COMPONENTS}
+        stored = {c: 0 if stored_nothing else stored_reference(scene, view, cfg.width, cfg.height, c)["spp"]
+                  for c in REFERENCE_COMPONENTS}
+        if stored_nothing:
+            from reference.env import load_mitsuba
+            load_mitsuba()   # no Mitsuba: no reference is rendered
     except Exception:   # no Mitsuba: the run leaves error columns empty and renders no reference
         return 0.0, 0.0
     cap = int(cfg.reference_spp_cap)
@@ -325,23 +339,29 @@ def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, s
 
 def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
     """Keep the rows that fit `budget_s`, by priority (defaults, ladder ends, middles), each view's
-    references and shared passes counted with its first kept row; mark the rest over budget."""
+    references and shared passes counted with its first kept row; mark the rest over budget.
+
+    The choice is made on the cold costs (every row rendered, every reference rendered): what the
+    caches hold does not change which rows a budget keeps, so the same command gives the same
+    rows, and a second run of it renders nothing new (a cached row is then cheap: its run is
+    shorter, not fuller). A larger budget, or none, is how a run gets more rows."""
     plan.budget_s = float(budget_s)
     spent = plan.setup_s
-    referenced: set = set()   # views whose references are counted
-    passes: set = set()       # (view, priority level) whose shared passes are counted
+    opened: set = set()       # views whose references and first shared passes are counted
+    passes: set = set()       # (view, priority level): a budgeted run visits a view once per level
     order = sorted(range(len(plan.rows)), key=lambda i: (plan.rows[i].priority, i))
     for i in order:
         row = plan.rows[i]
         if row.status == "guard":
             continue
         key = (row.job.scene, row.job.view)
-        view_cost = (0.0 if key in referenced else plan.views[key]["references"]) + \
-            (0.0 if (key, row.priority) in passes else plan.views[key]["shared_passes"])
-        cost_s = row.total + view_cost
-        if spent + cost_s <= budget_s or (row.status == "cached" and cost_s <= 1.0):
+        view = plan.views[key]
+        view_cost = (0.0 if key in opened else view["cold_references"]) + \
+            (0.0 if (key, row.priority) in passes else view["cold_shared"])
+        cost_s = row.cold + view_cost
+        if spent + cost_s <= budget_s:
             spent += cost_s
-            referenced.add(key)
+            opened.add(key)
             passes.add((key, row.priority))
         else:
             row.status, row.reason = "over budget", f"over budget (predicted {math.ceil(cost_s)} s)"
