@@ -76,6 +76,8 @@ class Runner:
         t_setup = time.perf_counter()
         # the budget counts from `started` (the command's start, time.perf_counter()), else from here
         self.started = t_setup if started is None else min(float(started), t_setup)
+        self._planned_done = 0.0          # the plan's prediction of the rows started so far (the run's pace)
+        self._opened_views: set = set()   # views whose first row has started
         self.plan: budget.RunPlan | None = None
         cfg.validate()
         self.cfg = cfg
@@ -361,37 +363,39 @@ class Runner:
         return row
 
     def budget_spent(self, planned: dict) -> str | None:
-        """Why a row that would render now is not started (the run's budget is spent), else None.
-        Spent = the time since the run began, plus this row's predicted time, plus what the rows
-        already run still need at the end (their metrics, their views' reference refinement),
-        exceeds the budget."""
+        """Why a row that would render now is not started (the run's budget is spent), else None."""
         if self.cfg.budget_s is None or planned.get("done") or self.plan is None:
             return None
-        elapsed = time.perf_counter() - self.started
-        job = planned["job"]
-        row_s = self.plan.job_seconds(job)
-        judged = [r for r in self.rows if Status.has_images(r.get("status"))]
-        views = {(r["scene"], r["view"]) for r in judged}
-        if (job.scene, job.view) not in views:   # this row opens its view: first pass now, refinement at the end
-            row_s += self.plan.views.get((job.scene, job.view), {}).get("references", 0.0)
-        finish_s = self.plan.finish_seconds(views, len(judged))
-        if elapsed + row_s + finish_s <= self.cfg.budget_s:
-            return None
-        return (f"over budget: the budget was spent ({elapsed:.0f} s of {self.cfg.budget_s:.0f} s used, "
-                f"this row predicted {row_s:.0f} s)")
+        return self._over_budget(planned["job"])
 
     def sequence_skip(self, name: str, view: str, method: str, index: int) -> str | None:
         """Why a sequence row is not run under the run's budget (the plan's choice, or the budget
         spent by now), else None."""
         if self.cfg.budget_s is None or self.plan is None:
             return None
-        job = plan.Job(name, view, method, index, {})
         over = self.plan.skipped_jobs().get((name, view, method, index))
-        if over is not None:
-            return over
+        return over if over is not None else self._over_budget(plan.Job(name, view, method, index, {}))
+
+    def _over_budget(self, job) -> str | None:
+        """The run's clock against its plan: a row is not started when the time spent, plus the row's
+        prediction (its view's references when it opens the view), plus what the rows already run
+        still need at the end (their metrics, their views' reference refinement), passes the budget.
+        The predictions of what is still to come are scaled by the run's pace so far (its time spent
+        over the plan's prediction of what it has done, within [0.5, 2]): a model that over- or
+        under-predicts this machine today neither stops a run early nor lets it overrun."""
         elapsed = time.perf_counter() - self.started
-        row_s = self.plan.job_seconds(job) + self.plan.views.get((name, view), {}).get("references", 0.0)
-        if elapsed + row_s <= self.cfg.budget_s:
+        row_s = self.plan.job_seconds(job)
+        view = self.plan.views.get((job.scene, job.view), {})
+        opening = (job.scene, job.view) not in self._opened_views
+        if opening:   # the first pass now, the refinement at the end
+            row_s += view.get("references", 0.0) - view.get("references_refinement", 0.0)
+        judged = [r for r in self.rows if Status.has_images(r.get("status"))]
+        finish_s = self.plan.finish_seconds(self._opened_views | ({(job.scene, job.view)} if opening else set()),
+                                            len(judged) + 1)
+        pace = min(max(elapsed / max(self.plan.setup_s + self._planned_done, 1.0), 0.5), 2.0)
+        if elapsed + pace * (row_s + finish_s) <= self.cfg.budget_s:
+            self._planned_done += row_s
+            self._opened_views.add((job.scene, job.view))
             return None
         return (f"over budget: the budget was spent ({elapsed:.0f} s of {self.cfg.budget_s:.0f} s used, "
                 f"this row predicted {row_s:.0f} s)")
