@@ -239,3 +239,15 @@ def test_a_budget_keeps_the_same_rows_when_the_cache_holds_them(tmp_path, fixed_
                              if not str(r["status"]).startswith("skipped"))
     assert kept(again) == kept(first) and len(kept(first)) == 2
     assert runner.counts["ok"] == 0 and runner.counts["cached"] == 2
+
+
+def test_the_reference_model_follows_what_runs_measured(tmp_path, monkeypatch):
+    """Runs that made a plan record the references predicted and measured: the next plan's reference
+    cost is scaled by their median ratio."""
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    prior = cost.CostModel(reference={"s/direct": 1e-6}, reference_spp={"s/direct": 1.0})
+    for predicted, actual in ((100.0, 50.0), (80.0, 48.0), (60.0, 30.0)):
+        cost.record_history({"predicted_s": {"references": predicted}, "actual_s": {"references": actual}})
+    local = prior.local([], [], cost.read_history())
+    assert local.reference_scale == pytest.approx(0.5)
+    assert local.reference_seconds("s", "direct", 1000, 64, 0, 64) == pytest.approx(0.5 * 64 * 1000 * 1e-6)

@@ -44,6 +44,9 @@ def main(args) -> int:
             model.setup = cost.fit_linear([{"triangles": r["triangles"]} for r in runs], [r["setup_s"] for r in runs])
         else:   # runs of one corpus size say nothing of how set-up grows with it: a constant
             model.setup = cost.Linear(const=statistics.median(r["setup_s"] for r in runs))
+        scales = [r["reference_scale"] * r["references_ratio"] for r in runs if r.get("references_ratio")]
+        if scales:   # the reference model against the references these runs measured
+            model.reference_scale = statistics.median(scales)
         per_pixel = [r["metrics_s_per_pixel"] for r in runs if r.get("metrics_s_per_pixel")]
         if per_pixel:
             model.metrics_s_per_pixel = statistics.median(per_pixel)

@@ -212,6 +212,7 @@ class CostModel:
     shared: Linear = field(default_factory=Linear)  # shared stages per frame of a view, terms pixels/triangles
     reference: dict = field(default_factory=dict)   # "scene/component" -> seconds per sample per pixel
     reference_spp: dict = field(default_factory=dict)   # "scene/component" -> fraction of the cap reached
+    reference_scale: float = 1.0                    # measured / predicted reference time of runs made with a plan
     metrics_s_per_pixel: float = METRICS_PRIOR_S_PER_PIXEL
     setup: Linear = field(default_factory=lambda: Linear(const=SETUP_PRIOR_S))   # terms: triangles (every scene loaded)
     scale: dict = field(default_factory=dict)       # method -> local scale of frame and prepare
@@ -247,7 +248,7 @@ class CostModel:
                 "prepare": {m: f.to_json() for m, f in sorted(self.prepare.items())},
                 "timed": self.timed.to_json(), "error": self.error.to_json(), "other": self.other.to_json(),
                 "shared": self.shared.to_json(), "reference": dict(sorted(self.reference.items())),
-                "reference_spp": dict(sorted(self.reference_spp.items())),
+                "reference_spp": dict(sorted(self.reference_spp.items())), "reference_scale": self.reference_scale,
                 "metrics_s_per_pixel": self.metrics_s_per_pixel, "setup": self.setup.to_json()}
 
     @classmethod
@@ -258,6 +259,7 @@ class CostModel:
                    other=Linear.from_json(d.get("other") or {}), shared=Linear.from_json(d.get("shared") or {}),
                    reference={k: float(v) for k, v in (d.get("reference") or {}).items()},
                    reference_spp={k: float(v) for k, v in (d.get("reference_spp") or {}).items()},
+                   reference_scale=float(d.get("reference_scale", 1.0)),
                    metrics_s_per_pixel=float(d.get("metrics_s_per_pixel", METRICS_PRIOR_S_PER_PIXEL)),
                    setup=Linear.from_json(d.get("setup") or {"const": SETUP_PRIOR_S}),
                    provenance=dict(d.get("provenance") or {}))
@@ -285,6 +287,10 @@ class CostModel:
         refs, spp = fit_references(reference_metas)
         model.reference.update(refs)
         model.reference_spp.update(spp)
+        ratios = [phase_ratio(h, "references") for h in history[-10:]]
+        ratios = [r for r in ratios if r is not None]
+        if ratios:   # the references measured against what the plan predicted for them
+            model.reference_scale = self.reference_scale * statistics.median(ratios)
         metrics = [h["metrics_s_per_pixel"] for h in history if _num(h.get("metrics_s_per_pixel"))]
         if metrics:
             model.metrics_s_per_pixel = statistics.median(metrics[-10:])
@@ -293,7 +299,7 @@ class CostModel:
             model.setup = fit_linear([{"triangles": h["triangles"]} for h in setups[-20:]],
                                      [h["setup_s"] for h in setups[-20:]])
         model.provenance = dict(self.provenance, local_rows=len(samples), local_references=len(reference_metas),
-                                local_runs=len(history))
+                                local_runs=len(history), reference_scale=model.reference_scale)
         return model
 
     # -------------------------------------------------------------- predictions
@@ -343,7 +349,20 @@ class CostModel:
             target = min(REFERENCE_FIRST_BATCH_SPP, spp_cap)
         else:
             target = max(min(first_pass_spp, spp_cap), min(spp_cap, frac * spp_cap))
-        return max(target - stored_spp, 0.0) * pixels * per
+        return max(target - stored_spp, 0.0) * pixels * per * self.reference_scale
+
+
+def phase_ratio(entry: dict, phase: str, floor_s: float = 5.0) -> float | None:
+    """Measured over predicted seconds of one phase of a run (a history entry or a manifest's
+    phases_predicted_vs_actual), None when the prediction was too small to say."""
+    if "predicted_s" in entry and isinstance(entry.get("predicted_s"), dict):
+        predicted, actual = _num((entry["predicted_s"] or {}).get(phase)), _num((entry.get("actual_s") or {}).get(phase))
+    else:
+        both = entry.get(phase) or {}
+        predicted, actual = _num(both.get("predicted_s")), _num(both.get("actual_s"))
+    if predicted is None or actual is None or predicted < floor_s:
+        return None
+    return actual / predicted
 
 
 def fit_references(metas: list[dict]) -> tuple[dict, dict]:
@@ -380,7 +399,9 @@ def run_phases(run_dir: Path) -> dict | None:
     except (OSError, ValueError, KeyError):
         return None
     out = {"setup_s": float(phases.get("setup", 0.0)) + float(phases.get("scene_upload", 0.0)),
-           "triangles": sum(int(f.get("triangle_count", 0)) for f in (manifest.get("scene_facts") or {}).values())}
+           "triangles": sum(int(f.get("triangle_count", 0)) for f in (manifest.get("scene_facts") or {}).values()),
+           "references_ratio": phase_ratio(manifest.get("phases_predicted_vs_actual") or {}, "references"),
+           "reference_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("reference_scale", 1.0))}
     judged = df[df["status"].astype(str).isin(["ok", "cached"])] if "status" in df else df.iloc[0:0]
     pixels = (judged["width"] * judged["height"]).sum() if len(judged) else 0
     if pixels and float(phases.get("metrics", 0.0)) > 0:
