@@ -251,3 +251,25 @@ def test_the_reference_model_follows_what_runs_measured(tmp_path, monkeypatch):
     local = prior.local([], [], cost.read_history())
     assert local.reference_scale == pytest.approx(0.5)
     assert local.reference_seconds("s", "direct", 1000, 64, 0, 64) == pytest.approx(0.5 * 64 * 1000 * 1e-6)
+
+
+def test_the_defaults_of_the_cheapest_views_come_first():
+    """A budget too small for every view's defaults keeps as many views as it can: the cheapest
+    views' defaults first, whatever their order in the corpus; then the ladders as before."""
+    from bench.run.plan import Job
+
+    def row(scene, method, priority, seconds):
+        return budget.PlannedRow(Job(scene, "main", method, 0, {}), priority, "render", {"timing": seconds},
+                                 cold=seconds)
+    views = {(s, "main"): {"shared_passes": 0.0, "references": r, "references_refinement": 0.0,
+                           "cold_references": r, "cold_shared": 0.0}
+             for s, r in (("costly", 500.0), ("cheap_a", 100.0), ("cheap_b", 150.0))}
+    rows = [row("costly", "direct", 0, 10.0), row("costly", "ssdo", 0, 10.0),
+            row("cheap_a", "direct", 0, 10.0), row("cheap_a", "ssdo", 0, 10.0), row("cheap_a", "ssdo", 1, 10.0),
+            row("cheap_b", "direct", 0, 10.0), row("cheap_b", "ssdo", 0, 10.0)]
+    plan = budget.apply_budget(budget.RunPlan(rows=rows, views=views, setup_s=0.0), 400.0)
+    kept = [(r.job.scene, r.job.method, r.priority) for r in plan.rows if r.status == "render"]
+    # cheap_a (120 s) and cheap_b (170 s) fit; costly (520 s) does not; then cheap_a's ladder row (10 s)
+    assert kept == [("cheap_a", "direct", 0), ("cheap_a", "ssdo", 0), ("cheap_a", "ssdo", 1),
+                    ("cheap_b", "direct", 0), ("cheap_b", "ssdo", 0)]
+    assert all(r.status == "over budget" for r in plan.rows if r.job.scene == "costly")

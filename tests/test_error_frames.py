@@ -1,4 +1,5 @@
-"""Issue #24: the error frames (K untimed frames of a fresh instance per row) and the error over
+"""Issue #24: the error frames (frames 0..K-1 of each row's instance, read back outside the timed
+regions) and the error over
 frames they give: bias2, variance, flicker and mse_accumulated, with intervals over pixels.
 
 (a) the identity E[single-frame MSE] = bias2 + variance, and each column against its closed form,
@@ -152,11 +153,52 @@ def test_temporal_reuse_flickers_less_than_its_variance(gl_ctx):
     within(out, "flicker", var / 2)
     within(out, "variance", var * (1 - 1 / K))
     assert out["flicker.indirect"] < out["variance.indirect"]
-    # the row's image is frame 0 of the timed instance (which went on to render 3 more), and the
-    # fresh instance started again from frame 0: its mean is not frame 0
+    # the row's image is frame 0, and the statistics are those of frames 0..K-1 (the timing
+    # stopped after 4 frames, the rest rendered untimed): their mean is not frame 0
     first = (mu + sigma * (noise(0) + noise(-1)) / np.sqrt(2.0)).astype(np.float32)
     assert np.array_equal(result.indirect, first)
     assert not np.array_equal(result.frame_stats[frame_stat_image("indirect", "mean")], first)
+
+
+def expected_statistics(method_cls, count=K):
+    """The statistics of frames 0..count-1 of a fresh instance, rendered here frame by frame."""
+    method = method_cls()
+    method.prepare(None, None, None, {}, SimpleNamespace(width=W, height=H))
+    stats = FrameStatistics(), FrameStatistics()
+    for index in range(count):
+        image = method.render(SimpleNamespace(index=index), None).indirect
+        stats[0].add(image)
+        stats[1].add(image)   # combined = direct (0) + indirect
+    return {frame_stat_image(c, name): img for c, acc in zip(("indirect", "combined"), stats)
+            for name, img in acc.images().items()}
+
+
+@pytest.mark.parametrize("frames", [1, 3, K + 2])
+def test_error_frames_are_the_first_k_whatever_the_timing_renders(gl_ctx, frames):
+    """Frames 0..K-1 in order, with the temporal state they carry: the same statistics whether the
+    timing stops before K frames (the rest rendered untimed) or goes past them."""
+    result = run_method(gl_ctx, ReusedNoise, make_open_box(), "main", W, H, frames=frames, error_frames=K)
+    expected = expected_statistics(ReusedNoise)
+    assert set(result.frame_stats) == set(expected)
+    for name, image in expected.items():
+        assert np.array_equal(result.frame_stats[name], image), name
+    # the warm-up and the timed frames (twice as many with a fence-serialised stage clock) come first
+    timed = 1 + frames * (2 if result.stage_clock == "finish_wall" else 1)
+    assert result.extra["error_frames_rendered"] == max(0, K - timed)
+
+
+@pytest.mark.parametrize("method", ["ir_unshadowed", "flc", "ssdo", "dss", "pbgi"])
+def test_real_methods_error_frames_do_not_depend_on_the_timing(gl_ctx, method):
+    """At defaults, the statistics are bit-identical whether the timed frames cover the K error
+    frames or not (the profiler, the read-backs and the untimed frames change no image)."""
+    from bench.protocol.registry import load_method
+    cls = load_method(method)
+    few = run_method(gl_ctx, cls, make_open_box(), "main", 32, 24, frames=1, error_frames=4)
+    many = run_method(gl_ctx, cls, make_open_box(), "main", 32, 24, frames=5, error_frames=4)
+    assert few.extra["error_frames_rendered"] > 0 and many.extra["error_frames_rendered"] == 0
+    for name, image in few.frame_stats.items():
+        assert np.array_equal(image, many.frame_stats[name]), (method, name)
+    assert np.array_equal(few.indirect, many.indirect)
 
 
 def test_frame_statistics_are_exact_for_identical_frames():
@@ -439,7 +481,7 @@ def test_declared_identical_frames_render_two_and_are_checked(gl_ctx):
     run_method(gl_ctx, TrulyIdentical, make_open_box(), "main", 16, 12, frames=1, warmup=1, error_frames=1)
     timed_only, TrulyIdentical.rendered = TrulyIdentical.rendered, 0
     result = run_method(gl_ctx, TrulyIdentical, make_open_box(), "main", 16, 12, frames=1, warmup=1, error_frames=K)
-    assert TrulyIdentical.rendered == timed_only + 2   # 2 error frames of the K
+    assert TrulyIdentical.rendered == timed_only   # the 2 error frames of the K are the timed instance's 0 and 1
     frame = result.indirect
     assert np.array_equal(result.frame_stats[frame_stat_image("indirect", "mean")], frame)
     assert not result.frame_stats[frame_stat_image("indirect", "var")].any()

@@ -338,8 +338,9 @@ def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, s
 
 
 def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
-    """Keep the rows that fit `budget_s`, by priority (defaults, ladder ends, middles), each view's
-    references and shared passes counted with its first kept row; mark the rest over budget.
+    """Keep the rows that fit `budget_s`, by priority (defaults, ladder ends, middles; the defaults
+    of the views whose defaults cost least first), each view's references and shared passes
+    counted with its first kept row; mark the rest over budget.
 
     The choice is made on the cold costs (every row rendered, every reference rendered): what the
     caches hold does not change which rows a budget keeps, so the same command gives the same
@@ -349,7 +350,18 @@ def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
     spent = plan.setup_s
     opened: set = set()       # views whose references and first shared passes are counted
     passes: set = set()       # (view, priority level): a budgeted run visits a view once per level
-    order = sorted(range(len(plan.rows)), key=lambda i: (plan.rows[i].priority, i))
+    # the defaults view by view, the cheapest views first: a budget too small for every view's
+    # defaults keeps as many views (static and in motion) as it can, not the first of the corpus
+    defaults_cost: dict = {}
+    for row in plan.rows:
+        if row.priority == 0 and row.status != "guard":
+            key = (row.job.scene, row.job.view)
+            defaults_cost[key] = defaults_cost.get(key, plan.views[key]["cold_references"]
+                                                   + plan.views[key]["cold_shared"]) + row.cold
+    def rank(i):
+        row = plan.rows[i]
+        return (row.priority, defaults_cost.get((row.job.scene, row.job.view), 0.0) if row.priority == 0 else 0.0, i)
+    order = sorted(range(len(plan.rows)), key=rank)
     for i in order:
         row = plan.rows[i]
         if row.status == "guard":

@@ -98,17 +98,19 @@ class Sample:
     terms: dict             # base + declared terms
     own_frame_s: float      # the method's own frame (shared passes excluded)
     shared_frame_s: float   # the shared stages it was charged for
-    prepare_s: float
-    frames_total_s: float   # wall of warm-up + timed frames
-    error_s: float          # wall of the error frames (fresh preparation included)
+    prepare_s: float        # preparation, and the first frame's excess over a steady one (a method that converges there)
+    frames_total_s: float   # wall of warm-up + timed frames, the first frame's excess excluded
+    error_s: float          # wall of the error frames' statistics (read-backs, sums, untimed frames)
     error_frames: int       # frames the error statistics were taken over (1: none)
-    error_renders: int      # of those, rendered (2 for a method whose frames are identical)
+    error_renders: int      # of those, read back (2 for a method whose frames are identical)
     timing_budget_s: float | None
     frames: int
     warmup: int
     other_s: float | None   # the row's wall beyond the method's parts (read-back, EXRs, cache)
     images: int             # EXRs the row wrote
     scene: str = ""
+    error_rendered: int = 0  # of error_renders, rendered for the statistics alone (after the timed frames)
+
 
 
 def row_terms(cls, params: dict, size: CostFacts) -> dict | None:
@@ -163,9 +165,26 @@ def sample_of(row: dict, scene_facts, timing_budget_s, error_frames: int) -> Sam
     error = _num(row.get("error_frames_ms"), 0.0) / 1e3
     wall = _num(row.get("row_wall_ms"))
     other = None if wall is None else max(wall / 1e3 - prepare - total - error, 0.0)
+    # the first frame's excess over a steady frame (pbgi converges its amortised gather there) is
+    # a cost of starting, as the preparation is: it recurs when a sequence restarts the method
+    first = _num(row.get("extra.first_frame_ms"))
+    if first is not None:
+        excess = max(first - own, 0.0) / 1e3
+    else:   # older rows: the frames' total less as many steady frames as were rendered
+        timed = int(_num(row.get("extra.timing_frames"), _num(row.get("frames"), 3)))
+        stage = int(_num(row.get("frames"), 3)) if str(row.get("stage_clock")) == "finish_wall" else 0
+        rendered_frames = int(_num(row.get("warmup"), 1)) + timed + stage
+        excess = max(total - rendered_frames * own / 1e3, 0.0)
+    prepare, total = prepare + excess, total - excess
+    renders = error_renders(cls, params, err_frames)
+    rendered = _num(row.get("extra.error_frames_rendered"))
+    if rendered is None and err_frames > 1:
+        # a row of a run before the error frames were the timed instance's: a fresh instance,
+        # prepared again, rendered all of them
+        rendered, error = renders, max(error - prepare, 0.0)
     return Sample(method=row["method"], terms=terms, own_frame_s=own / 1e3, shared_frame_s=max(frame - own, 0.0) / 1e3,
                   prepare_s=prepare, frames_total_s=total, error_s=error, error_frames=err_frames,
-                  error_renders=error_renders(cls, params, err_frames), timing_budget_s=timing_budget_s,
+                  error_renders=renders, error_rendered=int(rendered or 0), timing_budget_s=timing_budget_s,
                   frames=int(_num(row.get("frames"), 3)), warmup=int(_num(row.get("warmup"), 1)), other_s=other,
                   images=len(row_image_names(err_frames)), scene=str(row.get("scene", "")))
 
@@ -198,8 +217,15 @@ def timed_terms(own_s: float, frames: int, budget_s, warmup: int = 1) -> dict:
     return {"rendered_s": n * own_s, "rendered": n}
 
 
-def error_terms(prepare_s: float, own_s: float, renders: int) -> dict:
-    return {"prepare": prepare_s, "rendered": renders * own_s, "renders": float(renders)}
+def error_terms(own_s: float, rendered: float, read: int, pixels: float) -> dict:
+    """What the error frames' statistics cost: the frames rendered for them alone (those the timing
+    did not reach) and the frames read back and summed (per pixel)."""
+    return {"rendered": rendered * own_s, "read_pixels": read * pixels}
+
+
+def error_frames_rendered(read: int, timed_rendered: float) -> float:
+    """The error frames the timed frames (warm-up included) do not reach: rendered after them."""
+    return max(float(read) - float(timed_rendered), 0.0)
 
 
 @dataclass
@@ -231,7 +257,12 @@ class CostModel:
         model.timed = fit_linear([timed_terms(s.own_frame_s, s.frames, s.timing_budget_s, s.warmup)
                                   for s in samples], [s.frames_total_s for s in samples], const=True)
         with_errors = [s for s in samples if s.error_frames > 1]
-        model.error = fit_linear([error_terms(s.prepare_s, s.own_frame_s, s.error_renders) for s in with_errors],
+        # the read-back term is told apart from the rendering only by rows whose timed frames
+        # covered some error frames; rows of older runs rendered them all (the terms collinear)
+        separable = any(s.error_rendered < s.error_renders for s in with_errors)
+        model.error = fit_linear([{k: v for k, v in error_terms(s.own_frame_s, s.error_rendered, s.error_renders,
+                                                                 s.terms["pixels"]).items()
+                                   if separable or k == "rendered"} for s in with_errors],
                                  [s.error_s for s in with_errors], const=True)
         with_other = [s for s in samples if s.other_s is not None]
         model.other = fit_linear([{"pixel_images": s.terms["pixels"] * s.images} for s in with_other],
@@ -322,8 +353,10 @@ class CostModel:
         own = k * self._method_frame(method, terms)
         prep_fit = self.prepare.get(method)
         prepare = k * (prep_fit(terms) if prep_fit is not None else own)
-        timing = self.timed(timed_terms(own, frames, timing_budget_s, warmup))
-        error = self.error(error_terms(prepare, own, renders)) if renders else 0.0
+        timed = timed_terms(own, frames, timing_budget_s, warmup)
+        timing = self.timed(timed)
+        error = (self.error(error_terms(own, error_frames_rendered(renders, timed["rendered"]), renders, terms["pixels"]))
+                 if renders else 0.0)
         other = self.other({"pixel_images": terms["pixels"] * images})
         metrics = self.metrics_s_per_pixel * terms["pixels"] if judged else 0.0
         return {"precompute": prepare, "timing": timing, "error_frames": error, "rows_other": other,

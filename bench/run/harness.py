@@ -20,21 +20,25 @@ frame time (each frame charged its shared cost too), so it bounds a row's frames
 Without it (tests, direct calls, a method with `reuses_shared_passes = False`) each frame
 renders the passes as before.
 
-Error frames (`error_frames` = K > 1): after the timed frames, outside every timed region, a
-fresh instance of the method is prepared (untimed) and renders K frames of the same static
-view, frame indices 0..K-1, as an application would after a cut: its per-frame random streams
-and any temporal state it keeps evolve from frame 0. A fresh instance because the timed
-instance's state depends on how many frames the calibrated timing rendered; from a fresh one,
-frame 0 is the row's own image and the K frames depend only on the seed. Per image component
-(`indirect`, `combined`) `FrameStatistics` keeps, per pixel, the mean, the unbiased variance
-over the K frames and the flicker D = mean over consecutive pairs of (f_{k+1} - f_k)^2; the row
-gets them as images (`<component>_frames_{mean,var,flicker}`, bench.protocol.vocabulary) and
-records K in `extra.error_frames`. A method that declares its frames identical at the row's
-parameters (`frames_identical`: direct, manylights' centroid sum) renders two of the K, compared
-bit for bit (a false declaration fails the row), and counts the others as copies of them: the
-statistics are exactly those of K identical frames, for 2 frames' cost. Nothing timed changes: frame_ms, stage_ms and the row's
-images are those of the timed instance; the error pass's own wall time (prepare included) is
-`error_frames_ms`.
+Error frames (`error_frames` = K > 1): the row's instance, prepared once, renders frames 0, 1,
+2, ... in order, as an application does after a cut: its per-frame random streams and any
+temporal state it keeps evolve from frame 0, and frames 0..K-1 depend only on the seed, not on
+how many frames the calibrated timing goes on to render. So the first K of them give the error
+over frames: each is read back after its timed region closes (the read-back and the statistics
+are not in frame_ms, nor in the time the timing budget counts), and when the timing stops
+before K frames, the same instance renders the rest untimed (the profiler off). Frame 0 is the
+row's own image. Per image component (`indirect`, `combined`) `FrameStatistics` keeps, per
+pixel, the mean, the unbiased variance over the K frames and the flicker D = mean over
+consecutive pairs of (f_{k+1} - f_k)^2; the row gets them as images
+(`<component>_frames_{mean,var,flicker}`, bench.protocol.vocabulary) and records K in
+`extra.error_frames` and the frames rendered for them alone in `extra.error_frames_rendered`. A
+method that declares its frames identical at the row's parameters (`frames_identical`: direct,
+manylights' centroid sum) needs two of the K, compared bit for bit (a false declaration fails
+the row), and counts the others as copies of them: the statistics are exactly those of K
+identical frames. Nothing timed changes: frame_ms and stage_ms are those of the timed frames;
+the statistics' own wall time (read-backs, sums and the untimed frames) is `error_frames_ms`.
+(Until issue #29's second pass the K frames came from a second, fresh instance: the same
+frames, rendered twice.)
 """
 from __future__ import annotations
 
@@ -66,7 +70,7 @@ class RenderResult:
     prepare_ms: float = 0.0                             # the method's untimed prepare (precomputation)
     frames_total_ms: float = 0.0                        # wall time of every frame rendered (warm-up included)
     frame_stats: dict = field(default_factory=dict)     # error frames: image name -> HxWx3 float32 (FRAME_STAT_IMAGES)
-    error_frames_ms: float = 0.0                        # wall time of the error frames' pass (fresh prepare included)
+    error_frames_ms: float = 0.0                        # wall time of the error frames' statistics (read-backs, sums, untimed frames)
 
     @property
     def combined(self) -> np.ndarray:
@@ -106,6 +110,44 @@ class FrameStatistics:
         var = np.maximum((self.sum_d2 - self.sum_d * self.sum_d / k) / (k - 1), 0.0)
         return {"mean": mean.astype(np.float32), "var": var.astype(np.float32),
                 "flicker": (self.sum_step2 / (k - 1)).astype(np.float32)}
+
+
+class ErrorFrames:
+    """The error over frames of one row (the module's docstring): frames 0..K-1 of its instance,
+    read back as they are rendered. A method that declares identical frames needs two of them,
+    compared bit for bit; the others count as copies."""
+
+    def __init__(self, method_cls, params: dict, count: int, allow_nonfinite: bool):
+        self.method_name, self.count, self.allow_nonfinite = method_cls.name, int(count), allow_nonfinite
+        self.identical = self.count > 1 and bool(getattr(method_cls, "frames_identical", lambda p: False)(params))
+        self.needed = (min(self.count, 2) if self.identical else self.count) if self.count > 1 else 0
+        self.stats = {c: FrameStatistics() for c in FRAME_STAT_COMPONENTS}
+        self.first = None
+        self.seconds = 0.0      # wall time spent here (read-backs and sums)
+        self.rendered = 0       # frames rendered for the statistics alone (after the timed frames)
+
+    def wants(self, index: int) -> bool:
+        return index < self.needed
+
+    def add(self, index: int, direct: np.ndarray, indirect: np.ndarray) -> None:
+        if not self.allow_nonfinite and not (np.all(np.isfinite(direct)) and np.all(np.isfinite(indirect))):
+            raise FloatingPointError(f"method '{self.method_name}' produced non-finite pixels in error frame {index}")
+        images = {"indirect": indirect, "combined": direct + indirect}   # as RenderResult.combined
+        if self.identical:
+            if self.first is None:
+                self.first = images
+            elif not all(np.array_equal(self.first[c], images[c], equal_nan=True) for c in FRAME_STAT_COMPONENTS):
+                raise RuntimeError(f"method '{self.method_name}' declares identical frames (frames_identical) at "
+                                   f"these parameters, but its frame {index} differs from frame 0")
+        for component, acc in self.stats.items():
+            acc.add(images[component])
+
+    def images(self) -> dict:
+        """{frame_stat_image(component, statistic): HxWx3 float32} over the K frames."""
+        for _ in range(self.count - self.needed):
+            for component, acc in self.stats.items():
+                acc.add(self.first[component])
+        return {frame_stat_image(c, name): img for c, acc in self.stats.items() for name, img in acc.images().items()}
 
 
 @dataclass(frozen=True)
@@ -244,8 +286,9 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
     Images with NaN or Inf pixels raise FloatingPointError, unless `allow_nonfinite` (the stress
     suite, which counts them).
 
-    `error_frames` K > 1: then K frames of a fresh instance, untimed (the module's docstring),
-    give `frame_stats`; 1 renders none."""
+    `error_frames` K > 1: frames 0..K-1 of the instance, read back outside the timed regions and
+    completed untimed when the timing stops earlier (the module's docstring), give `frame_stats`;
+    1 reads none."""
     if warmup < 1:
         raise ValueError("warmup must be >= 1 (frame 0 gives the images)")
     if frames < 1:
@@ -281,6 +324,8 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
         prof = StageProfiler(ctx, own_stages + tuple(method_cls.stages))
         result = RenderResult(direct=None, indirect=None, params=params, stage_clock=prof.clock, prepare_ms=prepare_ms)
         skipped: set = set()
+        errors = ErrorFrames(method_cls, params, int(error_frames), allow_nonfinite)
+        errors_before_timing_s = 0.0   # the statistics' time before the timed frames began (not the budget's)
         # A finish-fenced stage clock serialises the stages, which a real frame does not: then
         # the frame wall times come from K frames with the profiler off and the stage times
         # from K more frames with it on. Timer queries perturb nothing: one set of K frames.
@@ -291,13 +336,16 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
             timed = index >= warmup
             if timed and timing_start is None:
                 timing_start = time.perf_counter()
+                errors_before_timing_s = errors.seconds
             if timed and not wall_done:
                 # wall frames until the count (or the calibration) is satisfied
                 if timing is None:
                     wall_done = len(result.frame_ms) >= frames
                 else:
                     # the budget is spent in frame time: a lent pass's measured cost counts in each frame
-                    spent_s = time.perf_counter() - timing_start + len(result.frame_ms) * shared_total_ms / 1e3
+                    # (the error frames' read-backs are not frame time)
+                    spent_s = (time.perf_counter() - timing_start - (errors.seconds - errors_before_timing_s)
+                               + len(result.frame_ms) * shared_total_ms / 1e3)
                     wall_done = timing.settled(result.frame_ms, frames, spent_s)
             if timed and wall_done and (stage_count >= frames if separate else True):
                 break
@@ -321,6 +369,14 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
                 result.direct = to_numpy(out.direct, shape)
                 result.indirect = to_numpy(out.indirect, shape)
                 result.extra = dict(out.extra)
+                result.extra["first_frame_ms"] = wall_ms   # the warm-up frame (a method may converge there)
+            if errors.wants(index):
+                t_read = time.perf_counter()
+                if index == 0:
+                    errors.add(index, result.direct, result.indirect)
+                else:
+                    errors.add(index, to_numpy(out.direct, shape), to_numpy(out.indirect, shape))
+                errors.seconds += time.perf_counter() - t_read
             if wall_frame:
                 result.frame_ms.append(wall_ms + shared_total_ms)
                 own_ms.append(wall_ms)
@@ -343,15 +399,27 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
                 bad = int((~np.isfinite(img)).any(axis=2).sum())
                 raise FloatingPointError(f"method '{method_cls.name}' produced {bad} non-finite {name} pixels")
         result.extra["error_frames"] = int(error_frames)
-        if error_frames > 1:
-            method.release()   # the timed instance's state is not the error frames' (fresh instance)
-            method = None
-            t_error = time.perf_counter()
-            method = method_cls()
-            result.frame_stats = _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, passes,
-                                               shared is not None, prof, seed, shape, int(error_frames),
-                                               allow_nonfinite)
-            result.error_frames_ms = (time.perf_counter() - t_error) * 1e3
+        if errors.needed:
+            # the error frames the timing did not reach: the same instance goes on, untimed
+            t_rest = time.perf_counter()
+            prof.enabled = False
+            while errors.wants(index):
+                prof.begin_frame()
+                frame = Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=index, seed=seed)
+                if shared is not None:
+                    passes.restore_state(method_cls.needs)
+                else:
+                    passes.render(prof)
+                out = method.render(frame, prof)
+                ctx.finish()
+                check_gl(ctx, f"method '{method_cls.name}' error frame {index}")
+                errors.add(index, to_numpy(out.direct, shape), to_numpy(out.indirect, shape))
+                errors.rendered += 1
+                index += 1
+            result.frame_stats = errors.images()
+            errors.seconds += time.perf_counter() - t_rest
+            result.error_frames_ms = errors.seconds * 1e3
+            result.extra["error_frames_rendered"] = errors.rendered
         return result
     finally:
         if method is not None:
@@ -363,45 +431,3 @@ def run_method(ctx: moderngl.Context, method_cls, scene: Scene, camera: str, wid
             prof_release.release()
         if own_gpu:
             gpu.release()
-
-
-def _error_frames(ctx, method, method_cls, gpu, scene, facts, params, view, passes, lent: bool, prof, seed: int,
-                  shape, count: int, allow_nonfinite: bool) -> dict:
-    """Prepare the fresh `method` and render frames 0..count-1 untimed (the profiler off), passes
-    restored (`lent`) or rendered in each frame; the per-pixel statistics of each component as
-    {frame_stat_image(component, statistic): HxWx3 float32}."""
-    method.prepare(gpu, scene, facts, params, view)
-    ctx.finish()
-    check_gl(ctx, f"method '{method_cls.name}' prepare (error frames)")
-    stats = {c: FrameStatistics() for c in FRAME_STAT_COMPONENTS}
-    prof.enabled = False
-    # a method that declares identical frames renders two, checked bit for bit; the others are copies
-    identical = bool(getattr(method_cls, "frames_identical", lambda p: False)(params))
-    rendered = min(count, 2) if identical else count
-    first = None
-    for index in range(rendered):
-        prof.begin_frame()
-        frame = Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=index, seed=seed)
-        if lent:
-            passes.restore_state(method_cls.needs)
-        else:
-            passes.render(prof)
-        out: FrameOutput = method.render(frame, prof)
-        ctx.finish()
-        check_gl(ctx, f"method '{method_cls.name}' error frame {index}")
-        direct, indirect = to_numpy(out.direct, shape), to_numpy(out.indirect, shape)
-        if not allow_nonfinite and not (np.all(np.isfinite(direct)) and np.all(np.isfinite(indirect))):
-            raise FloatingPointError(f"method '{method_cls.name}' produced non-finite pixels in error frame {index}")
-        images = {"indirect": indirect, "combined": direct + indirect}   # as RenderResult.combined
-        if identical:
-            if first is None:
-                first = images
-            elif not all(np.array_equal(first[c], images[c], equal_nan=True) for c in FRAME_STAT_COMPONENTS):
-                raise RuntimeError(f"method '{method_cls.name}' declares identical frames (frames_identical) at these "
-                                   f"parameters, but its frame {index} differs from frame 0")
-        for component, acc in stats.items():
-            acc.add(images[component])
-    for _ in range(count - rendered):
-        for component, acc in stats.items():
-            acc.add(first[component])
-    return {frame_stat_image(c, name): img for c, acc in stats.items() for name, img in acc.images().items()}

@@ -455,7 +455,7 @@ class Runner:
     def account_method(self, row: dict, row_s: float) -> None:
         """Charge a rendered row's prepare, frames and error frames to their phases, the rest of
         `row_s` to the harness."""
-        error_s = float(row.get("error_frames_ms", 0.0)) / 1e3   # the untimed error frames (fresh prepare included)
+        error_s = float(row.get("error_frames_ms", 0.0)) / 1e3   # the error frames' read-backs, sums and untimed frames
         method_s = (float(row.get("prepare_ms", 0.0)) + float(row.get("frames_total_ms", 0.0))) / 1e3 + error_s
         self.phases["precompute"] += float(row.get("prepare_ms", 0.0)) / 1e3
         self.phases["timing"] += float(row.get("frames_total_ms", 0.0)) / 1e3
