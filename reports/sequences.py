@@ -96,7 +96,8 @@ def sequence_blocks(run_dir: Path, out_dir: Path, results: pd.DataFrame) -> list
 
 def _filmstrip(run_dir: Path, out: Path, name: str, view: str, per_method: dict) -> dict:
     """PNGs of every frame: the reference (direct + indirect_visible) and each method's combined."""
-    frames = max(len(f) for f, _ in per_method.values())
+    # the sequence's own frames (settling frames, rendered only to measure a lag, keep no images)
+    frames = max(int((f["settling"] == 0).sum()) if "settling" in f else len(f) for f, _ in per_method.values())
     ref_dir = run_dir / "references" / name / view
     refs = []
     for t in range(frames):

@@ -273,3 +273,16 @@ def test_the_defaults_of_the_cheapest_views_come_first():
     assert kept == [("cheap_a", "direct", 0), ("cheap_a", "ssdo", 0), ("cheap_a", "ssdo", 1),
                     ("cheap_b", "direct", 0), ("cheap_b", "ssdo", 0)]
     assert all(r.status == "over budget" for r in plan.rows if r.job.scene == "costly")
+
+
+def test_what_earlier_runs_taught_the_local_model_does_not_change_the_choice(tmp_path, fixed_costs, monkeypatch):
+    """The budget chooses by the shipped prior's cold costs; the local model (here: a machine 3x
+    slower than the prior, as learned from earlier runs) changes the predicted time, not the rows."""
+    cfg = small_config(tmp_path, budget_s=1550.0)
+    before = serial.plan_only(cfg)
+    slower = fixed_model()
+    slower.timed = cost.Linear(const=3 * ROW_S)
+    monkeypatch.setattr(cost.CostModel, "local", lambda self, *a, **k: slower)
+    after = serial.plan_only(cfg)
+    assert [r.status for r in after.rows] == [r.status for r in before.rows]
+    assert after.total() > before.total() + 2 * ROW_S

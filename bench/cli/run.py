@@ -46,6 +46,11 @@ def add_parser(sub) -> None:
     p.add_argument("--sequence-rest", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=8, metavar="N",
                    help="frames at rest after the motion, over which a method that reuses earlier frames catches "
                         "up: its lag_frames (default 8)")
+    p.add_argument("--sequence-settle", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=64,
+                   metavar="N",
+                   help="a row whose error is not back within 10%% of its static level by the last frame renders "
+                        "up to N more frames at rest, only to measure its lag_frames (default 64; 0: the lag is "
+                        "then a lower bound, lag_frames_at_least)")
     p.add_argument("--plan", action="store_true",
                    help="print the cost plan (rows by scene and method, predicted time per phase, what is "
                         "skipped and why) and stop: nothing is rendered, no run folder is made")
@@ -80,7 +85,8 @@ def main(args) -> int:
                     shadow_resolution=args.shadow_resolution,
                     error_frames=args.error_frames if args.error_frames is not None else
                     (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES), budget_s=run_budget,
-                    sequences=sequences, sequence_frames=args.sequence_frames, sequence_rest=args.sequence_rest)
+                    sequences=sequences, sequence_frames=args.sequence_frames, sequence_rest=args.sequence_rest,
+                    sequence_settle=args.sequence_settle)
     if args.plan:
         print(serial.plan_only(cfg).table())
         return 0

@@ -182,11 +182,18 @@ def rung_priority(params: dict, index: int, count: int, has_defaults: bool) -> i
 
 def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model: cost.CostModel | None = None,
               resolved: dict | None = None, sequences: dict | None = None) -> RunPlan:
-    """Predict every job of a run (nothing renders; the row and reference caches are only read)."""
+    """Predict every job of a run (nothing renders; the row and reference caches are only read).
+
+    Two models: `model` (by default the prior scaled by what this machine's caches and earlier
+    runs measured) predicts what the run will take; the shipped prior alone gives the cold costs a
+    budget chooses by, so that the choice depends on the command and the checkout, not on what
+    earlier runs taught the local model (a second run of a command keeps its rows, from the cache).
+    The run's clock (bench.run.serial) still stops rows a slower machine has no time for."""
     renderer, clock = ctx.info.get("GL_RENDERER", ""), default_clock(ctx)
+    prior = cost.CostModel.prior()
     if model is None:
         by_hash = {f.content_hash: f for f in facts.values()}
-        model = cost.CostModel.prior().local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history())
+        model = prior.local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history())
     rows_cache = RowCache(log=lambda m: None)
     counts: dict = {}
     defaults: set = set()   # (scene, view, method) with a `{}` set among its rows
@@ -215,33 +222,37 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
             planned.append(PlannedRow(job, priority, "guard", {}, "its method's guard skips it (a declared limit)"))
             continue
         renders = cost.error_renders(cls, params, int(cfg.error_frames))
-        seconds = model.row(job.method, terms, frames=cfg.frames, warmup=cfg.warmup, timing_budget_s=cfg.timing_budget_s,
-                            error_frames=int(cfg.error_frames), renders=renders,
-                            images=len(row_image_names(cfg.error_frames)), judged=judged)
-        seconds.pop("frame")
+
+        def row_seconds(m):
+            out = m.row(job.method, terms, frames=cfg.frames, warmup=cfg.warmup, timing_budget_s=cfg.timing_budget_s,
+                        error_frames=int(cfg.error_frames), renders=renders,
+                        images=len(row_image_names(cfg.error_frames)), judged=judged)
+            out.pop("frame")
+            return out
+        seconds, cold = row_seconds(model), sum(row_seconds(prior).values())
         key = row_cache_key(scene, job.view, job.method, version, params, cfg, renderer, clock)
         if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
-            planned.append(PlannedRow(job, priority, "cached", {"metrics": metrics_s}, "in the row cache",
-                                      cold=sum(seconds.values())))
+            planned.append(PlannedRow(job, priority, "cached", {"metrics": metrics_s}, "in the row cache", cold=cold))
             views_needed.setdefault((job.scene, job.view), False)
             continue
-        planned.append(PlannedRow(job, priority, "render", seconds, cold=sum(seconds.values())))
+        planned.append(PlannedRow(job, priority, "render", seconds, cold=cold))
         views_needed[(job.scene, job.view)] = True
     views = {}
     for (scene_name, view), renders in views_needed.items():
         size = CostFacts.of(facts[scene_name], cfg.width, cfg.height)
         shared = model.shared_passes(size.pixels, size.triangles, cfg.frames, cfg.warmup, cfg.timing_budget_s)
         first, refinement = reference_seconds(model, cfg, scenes[scene_name], view, size) if cfg.references else (0, 0)
-        cold = sum(reference_seconds(model, cfg, scenes[scene_name], view, size, stored_nothing=True)) \
+        cold = sum(reference_seconds(prior, cfg, scenes[scene_name], view, size, stored_nothing=True)) \
             if cfg.references else 0.0
         views[(scene_name, view)] = {"shared_passes": shared if renders else 0.0, "references": first + refinement,
                                      "references_refinement": refinement, "cold_references": cold,
-                                     "cold_shared": shared}
+                                     "cold_shared": prior.shared_passes(size.pixels, size.triangles, cfg.frames,
+                                                                        cfg.warmup, cfg.timing_budget_s)}
     for row in planned:   # a view whose rows are all skipped by their guards costs nothing
         views.setdefault((row.job.scene, row.job.view), {"shared_passes": 0.0, "references": 0.0,
                                                          "references_refinement": 0.0, "cold_references": 0.0,
                                                          "cold_shared": 0.0})
-    sequence_rows, sequence_views, sequence_facts = plan_sequences(cfg, sequences or {}, model, renderer)
+    sequence_rows, sequence_views, sequence_facts = plan_sequences(cfg, sequences or {}, model, renderer, prior)
     planned += sequence_rows
     views.update(sequence_views)
     metrics_per_row = model.metrics_s_per_pixel * cfg.width * cfg.height if cfg.references else 0.0
@@ -250,13 +261,16 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
                    metrics_per_row_s=metrics_per_row)
 
 
-def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, renderer: str = "") -> tuple:
+def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, renderer: str = "",
+                   prior: cost.CostModel | None = None) -> tuple:
     """(planned rows, views, scene facts) of a run's sequence rows (bench.run.sequence_rows), each
     predicted whole under the phase `sequences`: its frames (the method's frame and the shared
     passes, every frame), a preparation at frame 0 and in every frame something moved (the
     protocol's default update), the static render of `lag_frames`, the harness's part and the
     metrics of every frame; each sequence view adds the references of its distinct frames (the
-    frames at rest share the last one's)."""
+    frames at rest share the last one's). Cold costs (what a budget chooses by) from `prior`
+    (default: `model`)."""
+    prior = prior or model
     scfg = sequence_config(cfg)
     rows, views, facts_of = [], {}, {}
     rows_cache = RowCache(log=lambda m: None)
@@ -277,22 +291,25 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, rende
         if terms is None:
             rows.append(PlannedRow(job, 0, "guard", {}, "its method's guard skips it (a declared limit)"))
             continue
-        one = model.row(method, terms, frames=1, warmup=1, timing_budget_s=None, error_frames=1, renders=0, images=3,
-                        judged=scfg.references)
-        shared = model.method_scale("*") * model.shared({"pixels": size.pixels, "triangles": size.triangles})
         moved = sum(1 for t in range(1, seq.frames) if seq.changes(t))
         lag = last_change(seq) < seq.frames - 1 and scfg.references
-        total = (seq.frames * (one["frame"] + shared) + (1 + moved + lag) * one["precompute"] + lag * one["frame"]
-                 + seq.frames * one["rows_other"] + (seq.frames + lag) * one["metrics"])
+
+        def row_seconds(m):
+            one = m.row(method, terms, frames=1, warmup=1, timing_budget_s=None, error_frames=1, renders=0, images=3,
+                        judged=scfg.references)
+            shared = m.method_scale("*") * m.shared({"pixels": size.pixels, "triangles": size.triangles})
+            return (seq.frames * (one["frame"] + shared) + (1 + moved + lag) * one["precompute"] + lag * one["frame"]
+                    + seq.frames * one["rows_other"] + (seq.frames + lag) * one["metrics"])
+        total, cold_total = row_seconds(model), row_seconds(prior)
         if (name, view) not in views:
             refs = _sequence_reference_seconds(model, scfg, seq, view, size) if scfg.references else 0.0
-            cold = _sequence_reference_seconds(model, scfg, seq, view, size, True) if scfg.references else 0.0
+            cold = _sequence_reference_seconds(prior, scfg, seq, view, size, True) if scfg.references else 0.0
             views[(name, view)] = {"shared_passes": 0.0, "references": refs, "references_refinement": 0.0,
                                    "cold_references": cold, "cold_shared": 0.0}
         if (rows_cache.entry_dir(key) / "row.json").is_file() and not cfg.force:
-            rows.append(PlannedRow(job, 0, "cached", {"sequences": 0.0}, "in the row cache", cold=total))
+            rows.append(PlannedRow(job, 0, "cached", {"sequences": 0.0}, "in the row cache", cold=cold_total))
             continue
-        rows.append(PlannedRow(job, 0, "render", {"sequences": total}, cold=total))
+        rows.append(PlannedRow(job, 0, "render", {"sequences": total}, cold=cold_total))
     return rows, views, list(facts_of.values())
 
 

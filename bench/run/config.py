@@ -47,6 +47,7 @@ class RunConfig:
     sequences: list = field(default_factory=list)   # corpus sequences (scenes in motion), rendered after the scenes
     sequence_frames: int = 8                        # frames of motion of each sequence
     sequence_rest: int = 8                          # then frames at rest (a reusing method's lag)
+    sequence_settle: int = 64                       # at most this many more at rest while a row's error has not settled (its lag)
     sequence_width: int = 160                       # sequences render (and are referenced) at this size:
     sequence_height: int = 90                       # a reference per frame costs what a view's does
     sequence_reference_spp: int = 256               # per-frame references' spp cap (and at most the run's)
@@ -67,6 +68,8 @@ class RunConfig:
             raise ValueError(f"sequence_frames={self.sequence_frames} outside {list(SEQUENCE_FRAMES_RANGE)}")
         if not 0 <= int(self.sequence_rest) <= SEQUENCE_FRAMES_RANGE[1]:
             raise ValueError(f"sequence_rest={self.sequence_rest} outside [0, {SEQUENCE_FRAMES_RANGE[1]}]")
+        if not 0 <= int(self.sequence_settle) <= SEQUENCE_FRAMES_RANGE[1]:
+            raise ValueError(f"sequence_settle={self.sequence_settle} outside [0, {SEQUENCE_FRAMES_RANGE[1]}]")
         if not self.methods:
             raise ValueError("no method given")
         if int(self.reference_spp_cap) < 2:

@@ -14,6 +14,12 @@ instance of the method, which sees frame t after frame t-1 and may keep state be
   scene they are per frame) and the method, timed together with the update: `frame_ms`.
 * A method may declare kinds of motion it cannot follow (`cannot_follow = {"geometry": why}`):
   a sequence that moves one of them is skipped with that reason (SkipRow), before any work.
+* Settling frames: a caller that measures how long a method that reuses earlier frames takes to
+  settle after the motion (bench.run.sequence_rows: `lag_frames`) passes `unsettled(result)`;
+  while it is True after the last frame, the same instance renders more frames at rest (the last
+  frame's scene, nothing moved), at most `settle_max`, recorded with `settling=True`. They are not
+  frames of the sequence: they exist only so that a lag longer than the frames at rest is
+  measured, not bounded.
 Images are read back after the clock stops. Nothing here writes files or judges images.
 """
 from __future__ import annotations
@@ -38,6 +44,7 @@ class SequenceFrame:
     frame_ms: float            # the method's update (if any) + shared passes + its render
     update_ms: float           # of which redoing what the motion invalidated
     upload_ms: float           # the engine's upload of the frame's scene (not the method's)
+    settling: bool = False     # a frame after the sequence's last, at rest, only to measure the lag
 
 
 @dataclass
@@ -76,8 +83,10 @@ def _update(method, method_cls, gpu, scene, facts, params, view, changes):
 
 
 def run_sequence(ctx, method_cls, sequence, camera: str, width: int, height: int, params: dict | None = None,
-                 seed: int = 0, shadow_resolution: int = 512, allow_nonfinite: bool = False) -> SequenceResult:
-    """Frames 0..N-1 of `sequence` seen through `camera`, in order, one instance of the method."""
+                 seed: int = 0, shadow_resolution: int = 512, allow_nonfinite: bool = False,
+                 unsettled=None, settle_max: int = 0) -> SequenceResult:
+    """Frames 0..N-1 of `sequence` seen through `camera`, in order, one instance of the method;
+    then, while `unsettled(result)`, up to `settle_max` settling frames at rest (the module's docstring)."""
     why = refusal(method_cls, sequence)
     if why is not None:
         raise SkipRow(why)
@@ -87,8 +96,11 @@ def run_sequence(ctx, method_cls, sequence, camera: str, width: int, height: int
     facts = None
     result = SequenceResult(params=params, prepare_ms=0.0)
     try:
-        for t in range(sequence.frames):
-            scene, changes = sequence.frame(t), sequence.changes(t)
+        last = sequence.frames - 1
+        t = 0
+        while t < sequence.frames or (unsettled is not None and t <= last + settle_max and unsettled(result)):
+            settling = t > last
+            scene, changes = (sequence.frame(last), frozenset()) if settling else (sequence.frame(t), sequence.changes(t))
             upload_ms = 0.0
             if t == 0 or changes:
                 t_upload = time.perf_counter()
@@ -139,7 +151,8 @@ def run_sequence(ctx, method_cls, sequence, camera: str, width: int, height: int
                         raise FloatingPointError(f"method '{method_cls.name}' produced {bad} non-finite {name} "
                                                  f"pixels at frame {t}")
             result.images.append((direct, indirect))
-            result.frames.append(SequenceFrame(t, tuple(sorted(changes)), frame_ms, update_ms, upload_ms))
+            result.frames.append(SequenceFrame(t, tuple(sorted(changes)), frame_ms, update_ms, upload_ms, settling))
+            t += 1
         return result
     finally:
         if method is not None:

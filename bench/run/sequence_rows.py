@@ -15,8 +15,16 @@ frame (bench.analysis.evaluation.evaluate_row). The row holds:
     `prepare_ms`;
   * `sequence` (its name) and `extra.sequence_frames`;
   * with frames at rest after the motion, `lag_frames`: the frames after the last motion until the
-    error is back within 10% of the method's static level on the final state (`static.relmse.
-    indirect`: a fresh instance starting there), NaN if not by the end (`lag_frames_at_least`).
+    error is back within 10% of the method's static level on the final state (a fresh instance
+    at rest there, rendered before the sequence: over its first K frames, the mean error
+    `static.relmse.indirect` and the worst `static_worst.relmse.indirect`, the level waited for,
+    so that a noisy method is back once within its own steady spread). A row not back by
+    the last frame renders settling frames at rest (the same instance, the last frame's scene,
+    at most `RunConfig.sequence_settle`) until it is: a lag longer than the frames at rest is
+    measured, not bounded (pbgi's amortised gather refreshes its emitters over a window of about
+    20 frames). NaN if not back even then (`lag_frames_at_least`). Settling frames are in
+    `frames.csv` (`settling` = 1) and in the lag, not in the row's means, worsts and frame times,
+    which are over the sequence's own frames.
 Per-frame values go to `frames.csv` in the row's image folder beside the images of every frame
 (`frame_NNN_{direct,indirect,combined}.exr`); the last frame's images and references are also
 written under the usual names, so the report shows a sequence like a view (its last frame).
@@ -34,14 +42,14 @@ import pandas as pd
 
 from bench.analysis.evaluation import evaluate_row
 from bench.model.imageio import write_exr
+from bench.model.animation import Sequence
 from bench.protocol import results as store
 from bench.protocol.method import SkipRow, resolve_params
 from bench.protocol.registry import load_method
-from bench.protocol.versioning import harness_version, method_version
+from bench.protocol.versioning import harness_version, hash_files, method_version
 from bench.protocol.vocabulary import IMAGE_COMPONENTS, REFERENCE_COMPONENTS, Status, failure_reason
 from bench.run.config import RunConfig, cache_root, effective_shadow_resolution, sequence_config, sequence_param_sets
 from bench.run.plan import image_folder
-from bench.run.harness import run_method
 from bench.run.row_cache import RowCache
 from bench.run.sequence import run_sequence
 from reference.api import ReferenceUnavailable, get_reference
@@ -49,13 +57,15 @@ from reference.api import ReferenceUnavailable, get_reference
 
 def sequence_key(sequence, view: str, method: str, version: str, params: dict, cfg: RunConfig, renderer: str) -> str:
     """Everything a sequence row depends on: every frame's scene content, the method's version and
-    parameters, the size, seed, renderer, the harness, and the references its errors are against
-    (their spp cap: the row holds its error columns)."""
+    parameters, the size, seed, renderer, the harness and the sequence code, and the references its
+    errors are against (their spp cap: the row holds its error columns)."""
     payload = {"kind": "sequence", "frames": [sequence.frame(t).content_hash() for t in range(sequence.frames)],
                "view": view, "method": method, "version": version, "params": params, "width": cfg.width,
                "height": cfg.height, "seed": cfg.seed, "shadow_resolution": effective_shadow_resolution(cfg),
                "renderer": renderer, "harness": harness_version(), "references": bool(cfg.references),
-               "reference_spp": int(cfg.reference_spp_cap)}
+               "reference_spp": int(cfg.reference_spp_cap), "settle": int(cfg.sequence_settle),
+               # how frames follow the motion and how the row's columns (lag, static level) are made
+               "sequence_code": hash_files({Path(__file__), Path(run_sequence.__code__.co_filename)})}
     return hashlib.sha256(json.dumps(payload, sort_keys=True, default=str).encode()).hexdigest()[:24]
 
 
@@ -157,8 +167,11 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
                 runner.rows.append(cached)
                 runner.record(cached, write=False)
                 continue
+            static = _static_level(ctx, cls, seq, view, params, cfg, references, memo)
             result = run_sequence(ctx, cls, seq, view, cfg.width, cfg.height, params, seed=cfg.seed,
-                                  shadow_resolution=effective_shadow_resolution(cfg))
+                                  shadow_resolution=effective_shadow_resolution(cfg),
+                                  unsettled=_unsettled(seq, view, static, references, memo),
+                                  settle_max=int(cfg.sequence_settle))
         except SkipRow as exc:
             row["status"] = Status.skipped(str(exc))
             runner.counts["skipped"] += 1
@@ -169,8 +182,8 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
             runner.log(f"gibench: sequence {name}/{view}/{method} failed: {failure_reason(exc)}")
         else:
             row.update(_record(runner.run_dir / folder, seq, view, result, references, memo))
-            if references is not None and "relmse.indirect" in row:
-                row.update(_lag(ctx, method, cls, seq, view, params, cfg, references, memo))
+            if static is not None and "relmse.indirect" in row:
+                row.update(_lag(seq, view, method, cls, params, static, references))
             row["status"] = Status.OK
             runner.counts["ok"] += 1
             rows_cache.store(row["row_key"], row, runner.run_dir / folder, files=sequence_files(seq.frames))
@@ -191,28 +204,55 @@ def last_change(seq) -> int:
     return moved[-1] if moved else 0
 
 
-def _lag(ctx, method: str, cls, seq, view: str, params: dict, cfg: RunConfig, references, memo) -> dict:
-    """`lag_frames`: after the motion's last frame, the frames until the row's error is back within
-    LAG_TOLERANCE of its static level, the error of a fresh instance that starts at the final state
-    (a static row of the last frame); NaN when it is not back by the end (`lag_frames_at_least`
-    then says how many frames at rest it was not). Needs frames at rest."""
-    end = last_change(seq)
-    if end >= seq.frames - 1:
-        return {}
-    last = seq.frames - 1
-    refs = references.frame(seq, view, last)
+def _static_level(ctx, cls, seq, view: str, params: dict, cfg: RunConfig, references, memo) -> dict | None:
+    """The error of a fresh instance at rest on the sequence's final state: over its frames 0..K-1
+    (K = the run's error frames, at least 2), the mean (`static.relmse.indirect`) and the worst
+    (`static_worst.relmse.indirect`), the level `lag_frames` waits for: a method whose frames are
+    noisy is back when its error is within its own steady spread, not when it beats one lucky
+    frame. None without frames at rest or references."""
+    if references is None or last_change(seq) >= seq.frames - 1:
+        return None
+    refs = references.frame(seq, view, seq.frames - 1)
     if not refs:
-        return {}
-    static = run_method(ctx, cls, seq.frame(last), view, cfg.width, cfg.height, params, seed=cfg.seed, warmup=1,
-                        frames=1, shadow_resolution=effective_shadow_resolution(cfg))
-    images = {"direct": static.direct, "indirect": static.indirect, "combined": static.direct + static.indirect}
-    level = evaluate_row(images, {c: r.mean for c, r in refs.items()}, memo).get(LAG_COLUMN)
-    out = {f"static.{LAG_COLUMN}": level}
+        return None
+    at_rest = Sequence(name=f"{seq.name}@rest", base=seq.frame(seq.frames - 1), frames=max(2, int(cfg.error_frames)),
+                       tracks=())
+    static = run_sequence(ctx, cls, at_rest, view, cfg.width, cfg.height, params, seed=cfg.seed,
+                          shadow_resolution=effective_shadow_resolution(cfg))
+    means = {c: r.mean for c, r in refs.items()}
+    errors = [evaluate_row({"direct": d, "indirect": i, "combined": d + i}, means, memo).get(LAG_COLUMN)
+              for d, i in static.images]
+    return {f"static.{LAG_COLUMN}": float(np.mean(errors)), f"static_worst.{LAG_COLUMN}": float(np.max(errors))}
+
+
+def _unsettled(seq, view: str, static: dict | None, references, memo):
+    """run_sequence's `unsettled`: after the last frame, True while no frame since the motion's last
+    is back within LAG_TOLERANCE of the static level (each frame judged once; the metrics memo then
+    serves _record). None (no settling frames) without a static level."""
+    if static is None:
+        return None
+    end, judged, level = last_change(seq), [], static[f"static_worst.{LAG_COLUMN}"]
+
+    def unsettled(result) -> bool:
+        refs = {c: r.mean for c, r in references.frame(seq, view, seq.frames - 1).items()}
+        for direct, indirect in result.images[end + len(judged):]:
+            images = {"direct": direct, "indirect": indirect, "combined": direct + indirect}
+            judged.append(evaluate_row(images, refs, memo).get(LAG_COLUMN))
+        return lag_after(np.asarray(judged, dtype=np.float64), 0, level) is None
+    return unsettled
+
+
+def _lag(seq, view: str, method: str, cls, params: dict, static: dict, references) -> dict:
+    """`lag_frames` from the row's per-frame errors (settling frames included) and its static level;
+    NaN when it is not back by the end (`lag_frames_at_least` then says how many frames at rest it
+    was not)."""
+    end = last_change(seq)
+    out, level = dict(static), static[f"static_worst.{LAG_COLUMN}"]
     errors = pd.read_csv(references.run_dir / _row_dir(seq, view, method, cls, params) / "frames.csv")[LAG_COLUMN]
     lag = lag_after(errors.to_numpy(dtype=np.float64), end, level)
     out["lag_frames"] = float("nan") if lag is None else float(lag)
     if lag is None:
-        out["lag_frames_at_least"] = float(last - end + 1)
+        out["lag_frames_at_least"] = float(len(errors) - end)
     return out
 
 
@@ -234,18 +274,19 @@ def _record(image_dir: Path, seq, view: str, result, references, memo) -> dict:
     per_frame = []
     for f, (direct, indirect) in zip(result.frames, result.images):
         images = {"direct": direct, "indirect": indirect, "combined": direct + indirect}
-        for comp in IMAGE_COMPONENTS:
+        for comp in IMAGE_COMPONENTS if not f.settling else ():   # settling frames: their errors only
             write_exr(image_dir / f"frame_{f.t:03d}_{comp}.exr", images[comp])
             if f.t == seq.frames - 1:
                 write_exr(image_dir / f"{comp}.exr", images[comp])
         values = {"t": f.t, "changes": "+".join(f.changes), "frame_ms": f.frame_ms, "update_ms": f.update_ms,
-                  "upload_ms": f.upload_ms}
-        refs = references.frame(seq, view, f.t) if references is not None else {}
+                  "upload_ms": f.upload_ms, "settling": int(f.settling)}
+        refs = references.frame(seq, view, min(f.t, seq.frames - 1)) if references is not None else {}
         if refs:
             values.update(evaluate_row(images, {c: r.mean for c, r in refs.items()}, memo))
         per_frame.append(values)
     table = pd.DataFrame(per_frame)
     table.to_csv(image_dir / "frames.csv", index=False)
+    table = table[table["settling"] == 0]                       # the row's figures: the sequence's own frames
     moving = table[table["t"] > 0]                              # every frame after the cold first one
     moved = table[(table["t"] > 0) & (table["changes"].fillna("") != "")]   # the frames something moved in
     out = {"frame_ms": float(moving["frame_ms"].median()), "frame_ms_worst": float(moving["frame_ms"].max()),
