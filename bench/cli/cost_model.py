@@ -47,6 +47,10 @@ def main(args) -> int:
         scales = [r["reference_scale"] * r["references_ratio"] for r in runs if r.get("references_ratio")]
         if scales:   # the reference model against the references these runs measured
             model.reference_scale = statistics.median(scales)
+        scales = [r["sequence_scale"] * r["sequences_ratio"] for r in runs if r.get("sequences_ratio")]
+        if scales:   # the sequence rows' model against the sequence rows the last of these runs measured
+            # (the sequence rows' prediction changed with the planner: older runs' ratios are of another model)
+            model.sequence_scale = scales[-1]
         per_pixel = [r["metrics_s_per_pixel"] for r in runs if r.get("metrics_s_per_pixel")]
         if per_pixel:
             model.metrics_s_per_pixel = statistics.median(per_pixel)
@@ -68,4 +72,4 @@ def predicted_and_actual(model: cost.CostModel, s: cost.Sample) -> tuple[float, 
     p = model.row(s.method, s.terms, frames=s.frames, warmup=s.warmup, timing_budget_s=s.timing_budget_s,
                   error_frames=s.error_frames, renders=s.error_renders, images=s.images, judged=False)
     predicted = p["precompute"] + p["timing"] + p["error_frames"] + p["rows_other"]
-    return predicted, s.prepare_s + s.frames_total_s + s.error_s + (s.other_s or 0.0)
+    return predicted, s.prepare_s + s.frames_total_s + (s.error_s or 0.0) + (s.other_s or 0.0)

@@ -195,6 +195,7 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
         by_hash = {f.content_hash: f for f in facts.values()}
         model = prior.local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history())
     rows_cache = RowCache(log=lambda m: None)
+    stage_frames = int(cfg.frames) if clock == "finish_wall" else 0   # a fenced stage clock times them apart
     counts: dict = {}
     defaults: set = set()   # (scene, view, method) with a `{}` set among its rows
     for job in jobs:
@@ -226,7 +227,7 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
         def row_seconds(m):
             out = m.row(job.method, terms, frames=cfg.frames, warmup=cfg.warmup, timing_budget_s=cfg.timing_budget_s,
                         error_frames=int(cfg.error_frames), renders=renders,
-                        images=len(row_image_names(cfg.error_frames)), judged=judged)
+                        images=len(row_image_names(cfg.error_frames)), judged=judged, stage_frames=stage_frames)
             out.pop("frame")
             return out
         seconds, cold = row_seconds(model), sum(row_seconds(prior).values())
@@ -266,8 +267,9 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, rende
     """(planned rows, views, scene facts) of a run's sequence rows (bench.run.sequence_rows), each
     predicted whole under the phase `sequences`: its frames (the method's frame and the shared
     passes, every frame), a preparation at frame 0 and in every frame something moved (the
-    protocol's default update), the static render of `lag_frames`, the harness's part and the
-    metrics of every frame; each sequence view adds the references of its distinct frames (the
+    protocol's default update), the K static frames of `lag_frames`' level (settling frames,
+    which only a method that reuses earlier frames renders, are not predicted), the harness's part
+    and the metrics of every frame; each sequence view adds the references of its distinct frames (the
     frames at rest share the last one's). Cold costs (what a budget chooses by) from `prior`
     (default: `model`)."""
     prior = prior or model
@@ -298,8 +300,11 @@ def plan_sequences(cfg: RunConfig, sequences: dict, model: cost.CostModel, rende
             one = m.row(method, terms, frames=1, warmup=1, timing_budget_s=None, error_frames=1, renders=0, images=3,
                         judged=scfg.references)
             shared = m.method_scale("*") * m.shared({"pixels": size.pixels, "triangles": size.triangles})
-            return (seq.frames * (one["frame"] + shared) + (1 + moved + lag) * one["precompute"] + lag * one["frame"]
-                    + seq.frames * one["rows_other"] + (seq.frames + lag) * one["metrics"])
+            # the static level of lag_frames: K frames of a fresh instance at rest (sequence_rows._static_level)
+            at_rest = lag * max(2, int(cfg.error_frames))
+            return m.sequence_scale * (seq.frames * (one["frame"] + shared) + (1 + moved + lag) * one["precompute"]
+                                       + at_rest * (one["frame"] + shared) + seq.frames * one["rows_other"]
+                                       + (seq.frames + at_rest) * one["metrics"])
         total, cold_total = row_seconds(model), row_seconds(prior)
         if (name, view) not in views:
             refs = _sequence_reference_seconds(model, scfg, seq, view, size) if scfg.references else 0.0

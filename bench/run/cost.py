@@ -100,7 +100,7 @@ class Sample:
     shared_frame_s: float   # the shared stages it was charged for
     prepare_s: float        # preparation, and the first frame's excess over a steady one (a method that converges there)
     frames_total_s: float   # wall of warm-up + timed frames, the first frame's excess excluded
-    error_s: float          # wall of the error frames' statistics (read-backs, sums, untimed frames)
+    error_s: float | None   # wall of the error frames' statistics (read-backs, sums, untimed frames); None: unknown
     error_frames: int       # frames the error statistics were taken over (1: none)
     error_renders: int      # of those, read back (2 for a method whose frames are identical)
     timing_budget_s: float | None
@@ -180,8 +180,11 @@ def sample_of(row: dict, scene_facts, timing_budget_s, error_frames: int) -> Sam
     rendered = _num(row.get("extra.error_frames_rendered"))
     if rendered is None and err_frames > 1:
         # a row of a run before the error frames were the timed instance's: a fresh instance,
-        # prepared again, rendered all of them
-        rendered, error = renders, max(error - prepare, 0.0)
+        # prepared (and converged) again, rendered all of them; what is left of its wall must be
+        # those frames, or the row tells the error model nothing (None)
+        rendered, error = renders, error - prepare
+        if error < 0.5 * renders * own / 1e3:
+            error = None
     return Sample(method=row["method"], terms=terms, own_frame_s=own / 1e3, shared_frame_s=max(frame - own, 0.0) / 1e3,
                   prepare_s=prepare, frames_total_s=total, error_s=error, error_frames=err_frames,
                   error_renders=renders, error_rendered=int(rendered or 0), timing_budget_s=timing_budget_s,
@@ -239,6 +242,7 @@ class CostModel:
     reference: dict = field(default_factory=dict)   # "scene/component" -> seconds per sample per pixel
     reference_spp: dict = field(default_factory=dict)   # "scene/component" -> fraction of the cap reached
     reference_scale: float = 1.0                    # measured / predicted reference time of runs made with a plan
+    sequence_scale: float = 1.0                     # measured / predicted sequence rows of runs made with a plan
     metrics_s_per_pixel: float = METRICS_PRIOR_S_PER_PIXEL
     setup: Linear = field(default_factory=lambda: Linear(const=SETUP_PRIOR_S))   # terms: triangles (every scene loaded)
     scale: dict = field(default_factory=dict)       # method -> local scale of frame and prepare
@@ -280,6 +284,7 @@ class CostModel:
                 "timed": self.timed.to_json(), "error": self.error.to_json(), "other": self.other.to_json(),
                 "shared": self.shared.to_json(), "reference": dict(sorted(self.reference.items())),
                 "reference_spp": dict(sorted(self.reference_spp.items())), "reference_scale": self.reference_scale,
+                "sequence_scale": self.sequence_scale,
                 "metrics_s_per_pixel": self.metrics_s_per_pixel, "setup": self.setup.to_json()}
 
     @classmethod
@@ -291,6 +296,7 @@ class CostModel:
                    reference={k: float(v) for k, v in (d.get("reference") or {}).items()},
                    reference_spp={k: float(v) for k, v in (d.get("reference_spp") or {}).items()},
                    reference_scale=float(d.get("reference_scale", 1.0)),
+                   sequence_scale=float(d.get("sequence_scale", 1.0)),
                    metrics_s_per_pixel=float(d.get("metrics_s_per_pixel", METRICS_PRIOR_S_PER_PIXEL)),
                    setup=Linear.from_json(d.get("setup") or {"const": SETUP_PRIOR_S}),
                    provenance=dict(d.get("provenance") or {}))
@@ -322,6 +328,9 @@ class CostModel:
         ratios = [r for r in ratios if r is not None]
         if ratios:   # the references measured against what the plan predicted for them
             model.reference_scale = self.reference_scale * statistics.median(ratios)
+        ratios = [r for r in (phase_ratio(h, "sequences") for h in history[-10:]) if r is not None]
+        if ratios:   # the sequence rows likewise
+            model.sequence_scale = self.sequence_scale * statistics.median(ratios)
         metrics = [h["metrics_s_per_pixel"] for h in history if _num(h.get("metrics_s_per_pixel"))]
         if metrics:
             model.metrics_s_per_pixel = statistics.median(metrics[-10:])
@@ -330,7 +339,8 @@ class CostModel:
             model.setup = fit_linear([{"triangles": h["triangles"]} for h in setups[-20:]],
                                      [h["setup_s"] for h in setups[-20:]])
         model.provenance = dict(self.provenance, local_rows=len(samples), local_references=len(reference_metas),
-                                local_runs=len(history), reference_scale=model.reference_scale)
+                                local_runs=len(history), reference_scale=model.reference_scale,
+                                sequence_scale=model.sequence_scale)
         return model
 
     # -------------------------------------------------------------- predictions
@@ -347,7 +357,7 @@ class CostModel:
         return self.scale.get(method, self.scale.get("*", 1.0))
 
     def row(self, method: str, terms: dict, *, frames: int, warmup: int, timing_budget_s, error_frames: int, renders: int,
-            images: int, judged: bool) -> dict:
+            images: int, judged: bool, stage_frames: int = 0) -> dict:
         """Predicted seconds of one row's phases: precompute, timing, error_frames, rows_other, metrics."""
         k = self.method_scale(method)
         own = k * self._method_frame(method, terms)
@@ -355,8 +365,9 @@ class CostModel:
         prepare = k * (prep_fit(terms) if prep_fit is not None else own)
         timed = timed_terms(own, frames, timing_budget_s, warmup)
         timing = self.timed(timed)
-        error = (self.error(error_terms(own, error_frames_rendered(renders, timed["rendered"]), renders, terms["pixels"]))
-                 if renders else 0.0)
+        # the error frames the warm-up, timed and stage frames (a fenced stage clock's) do not reach
+        error = (self.error(error_terms(own, error_frames_rendered(renders, timed["rendered"] + stage_frames), renders,
+                                        terms["pixels"])) if renders else 0.0)
         other = self.other({"pixel_images": terms["pixels"] * images})
         metrics = self.metrics_s_per_pixel * terms["pixels"] if judged else 0.0
         return {"precompute": prepare, "timing": timing, "error_frames": error, "rows_other": other,
@@ -434,7 +445,9 @@ def run_phases(run_dir: Path) -> dict | None:
     out = {"setup_s": float(phases.get("setup", 0.0)) + float(phases.get("scene_upload", 0.0)),
            "triangles": sum(int(f.get("triangle_count", 0)) for f in (manifest.get("scene_facts") or {}).values()),
            "references_ratio": phase_ratio(manifest.get("phases_predicted_vs_actual") or {}, "references"),
-           "reference_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("reference_scale", 1.0))}
+           "reference_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("reference_scale", 1.0)),
+           "sequences_ratio": phase_ratio(manifest.get("phases_predicted_vs_actual") or {}, "sequences"),
+           "sequence_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("sequence_scale", 1.0))}
     judged = df[df["status"].astype(str).isin(["ok", "cached"])] if "status" in df else df.iloc[0:0]
     pixels = (judged["width"] * judged["height"]).sum() if len(judged) else 0
     if pixels and float(phases.get("metrics", 0.0)) > 0:
