@@ -273,6 +273,9 @@ def test_the_defaults_of_the_cheapest_views_come_first():
     assert kept == [("cheap_a", "direct", 0), ("cheap_a", "ssdo", 0), ("cheap_a", "ssdo", 1),
                     ("cheap_b", "direct", 0), ("cheap_b", "ssdo", 0)]
     assert all(r.status == "over budget" for r in plan.rows if r.job.scene == "costly")
+    # and a budgeted run takes them in that order: a run that falls behind cuts the costly view, then ladders
+    assert [(j.scene, j.method) for j in plan.ordered_jobs()][:5] == \
+        [("cheap_a", "direct"), ("cheap_a", "ssdo"), ("cheap_b", "direct"), ("cheap_b", "ssdo"), ("costly", "direct")]
 
 
 def test_what_earlier_runs_taught_the_local_model_does_not_change_the_choice(tmp_path, fixed_costs, monkeypatch):

@@ -41,11 +41,11 @@ def add_parser(sub) -> None:
                         "sequences`): each method at its defaults follows each frame in order, judged against a "
                         "reference per frame (default: " + ",".join(options.DEFAULT_SEQUENCES) + " with the default "
                         "scenes, none with --scenes; --sequences alone runs only the sequences)")
-    p.add_argument("--sequence-frames", type=options.int_in(*options.SEQUENCE_FRAMES_RANGE), default=8, metavar="N",
-                   help="frames of motion of each sequence (default 8)")
-    p.add_argument("--sequence-rest", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=8, metavar="N",
+    p.add_argument("--sequence-frames", type=options.int_in(*options.SEQUENCE_FRAMES_RANGE), default=6, metavar="N",
+                   help="frames of motion of each sequence (default 6)")
+    p.add_argument("--sequence-rest", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=6, metavar="N",
                    help="frames at rest after the motion, over which a method that reuses earlier frames catches "
-                        "up: its lag_frames (default 8)")
+                        "up: its lag_frames (default 6)")
     p.add_argument("--sequence-settle", type=options.int_in(0, options.SEQUENCE_FRAMES_RANGE[1]), default=64,
                    metavar="N",
                    help="a row whose error is not back within 10%% of its static level by the last frame renders "

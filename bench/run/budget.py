@@ -71,6 +71,7 @@ class RunPlan:
     budget_s: float | None = None
     model: dict = field(default_factory=dict)      # the model's provenance
     metrics_per_row_s: float = 0.0
+    view_cost: dict = field(default_factory=dict)  # (scene, view) -> cold cost of its defaults (apply_budget)
 
     def kept(self) -> list:
         return [r for r in self.rows if r.status != "over budget"]
@@ -99,11 +100,17 @@ class RunPlan:
     def total(self) -> float:
         return sum(self.phases().values())
 
+    def rank(self, row) -> tuple:
+        """A row's place in a budgeted run: its level, then (defaults) its view's cold cost."""
+        key = (row.job.scene, row.job.view)
+        return (row.priority, self.view_cost.get(key, 0.0) if row.priority == 0 else 0.0)
+
     def ordered_jobs(self) -> list:
-        """The jobs in the order a budgeted run takes them: every method's defaults (view by view),
-        then the ladders' ends, then their middles, so that if time runs short it is the middles
-        that go, not a method's only row."""
-        return [r.job for r in sorted(self.rows, key=lambda r: r.priority)]   # stable: job order within a level
+        """The jobs in the order a budgeted run takes them, the order the budget chose them in:
+        every method's defaults (view by view, the cheapest views first), then the ladders' ends,
+        then their middles, so that if time runs short it is the middles that go, not a method's
+        only row, nor a whole cheap view for an expensive one."""
+        return [r.job for r in sorted(self.rows, key=self.rank)]   # stable: job order within a level
 
     def job_seconds(self, job) -> float:
         """Predicted seconds of one job's row (0 for a job the plan does not know)."""
@@ -380,10 +387,8 @@ def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
             key = (row.job.scene, row.job.view)
             defaults_cost[key] = defaults_cost.get(key, plan.views[key]["cold_references"]
                                                    + plan.views[key]["cold_shared"]) + row.cold
-    def rank(i):
-        row = plan.rows[i]
-        return (row.priority, defaults_cost.get((row.job.scene, row.job.view), 0.0) if row.priority == 0 else 0.0, i)
-    order = sorted(range(len(plan.rows)), key=rank)
+    plan.view_cost = defaults_cost
+    order = sorted(range(len(plan.rows)), key=lambda i: (*plan.rank(plan.rows[i]), i))
     for i in order:
         row = plan.rows[i]
         if row.status == "guard":

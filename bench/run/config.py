@@ -45,8 +45,10 @@ class RunConfig:
     error_frames: int = 8                           # untimed frames of a fresh instance per row (bias, variance, flicker); 1: none
     budget_s: float | None = None                   # the run's time budget: rows that do not fit are skipped (bench.run.budget)
     sequences: list = field(default_factory=list)   # corpus sequences (scenes in motion), rendered after the scenes
-    sequence_frames: int = 8                        # frames of motion of each sequence
-    sequence_rest: int = 8                          # then frames at rest (a reusing method's lag)
+    # 6 + 6 frames: the three sequences fit a cold default run (bench.sh, 28 minutes) beside every
+    # view's defaults; a lag longer than the rest is measured by the settling frames
+    sequence_frames: int = 6                        # frames of motion of each sequence
+    sequence_rest: int = 6                          # then frames at rest (a reusing method's lag)
     sequence_settle: int = 64                       # at most this many more at rest while a row's error has not settled (its lag)
     sequence_width: int = 160                       # sequences render (and are referenced) at this size:
     sequence_height: int = 90                       # a reference per frame costs what a view's does

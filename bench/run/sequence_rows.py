@@ -136,7 +136,10 @@ def run_sequence_rows(runner, ctx, renderer: str) -> None:
     references = SequenceReferences(runner.run_dir, cfg, runner.log) if cfg.references else None
     memo = cache_root() / "metrics"
     rows_cache = RowCache(runner.log)
-    for name, view, method, index, pset in sequence_jobs(cfg, runner.sequences):
+    jobs = sequence_jobs(cfg, runner.sequences)
+    if runner.plan is not None and runner.plan.view_cost:   # budgeted: the cheapest views first, as chosen
+        jobs = sorted(jobs, key=lambda j: runner.plan.view_cost.get((j[0], j[1]), 0.0))
+    for name, view, method, index, pset in jobs:
         seq = runner.sequences[name]
         row = {"scene": name, "sequence": name, "view": view, "method": method, "params": store.params_json(pset),
                "seed": cfg.seed, "width": cfg.width, "height": cfg.height, "frames": seq.frames, "warmup": 0,

@@ -19,8 +19,8 @@ import numpy as np
 from bench.model.animation import Sequence
 from bench.model.scene import SceneError
 
-FRAMES = 8   # frames of motion
-REST = 8     # then frames at rest
+FRAMES = 6   # frames of motion (RunConfig.sequence_frames)
+REST = 6     # then frames at rest (RunConfig.sequence_rest)
 
 
 @dataclass(frozen=True)
