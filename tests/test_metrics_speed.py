@@ -232,6 +232,58 @@ def test_kept_references_are_bounded_in_bytes(monkeypatch):
     assert len(evaluation._PREPARED) == 0
 
 
+def reference_decomposition(mean, var, flicker, reference, ref_variance, mask, frames) -> dict:
+    """The error-frame decomposition as it was written before the speed-up: every array converted
+    and selected with the mask on its own, numpy's mean over channels, relmse's epsilon recomputed."""
+    from bench.analysis.evaluation import Z95
+    from bench.protocol.vocabulary import DECOMPOSITION_METRICS
+    m = np.asarray(mask, bool)
+    Mn, V, D, R, S = (np.asarray(a, np.float64)[m] for a in (mean, var, flicker, reference, ref_variance))
+    err2 = (Mn - R) ** 2
+    per_channel = {"mse_accumulated": err2 - S, "variance": V, "bias2": err2 - V / frames - S, "flicker": D / 2}
+    if m.any():
+        weight = 1.0 / (R * R + M.relmse_epsilon(np.asarray(reference), m))
+        per_channel.update({f"rel_{name}": q * weight for name, q in list(per_channel.items())})
+    out = {}
+    for metric in DECOMPOSITION_METRICS:
+        per_pixel = per_channel[metric].mean(axis=1) if metric in per_channel else np.empty(0)
+        n = per_pixel.size
+        out[metric] = (float(per_pixel.mean()) if n else float("nan"),
+                       float(Z95 * per_pixel.std(ddof=1) / np.sqrt(n)) if n > 1 else float("nan"))
+    return out
+
+
+@pytest.mark.parametrize("h,w,coverage", [(180, 320, 0.9), (33, 47, 0.5), (5, 6, 0.3), (8, 8, 0.0)])
+def test_decomposition_equals_the_straightforward_path(h, w, coverage):
+    """The error frames' bias/variance/flicker columns (each image's covered pixels selected once per
+    row, channels summed in numpy's order) equal the plain formulas bit for bit, in evaluate_row too."""
+    from bench.analysis.evaluation import decomposition
+    from bench.protocol.vocabulary import FRAME_STAT_IMAGES, frame_stat_image, metric_column, interval_column
+    rng = np.random.default_rng(h * w)
+    arrays = [(rng.standard_normal((h, w, 3)) * rng.random()).astype(np.float32) for _ in range(5)]
+    mask = rng.random((h, w)) < coverage
+    fast, slow = decomposition(*arrays, mask, 8), reference_decomposition(*arrays, mask, 8)
+    assert fast.keys() == slow.keys()
+    for metric, (value, ci) in slow.items():
+        assert same({"v": fast[metric][0], "ci": fast[metric][1]}, {"v": value, "ci": ci}), metric
+    if coverage == 0.0 or min(h, w) < 7:
+        return
+    images, refs = synthetic_row(h, w, seed=3)
+    stats = {n: (rng.random((h, w, 3)) * 0.1).astype(np.float32) for n in FRAME_STAT_IMAGES}
+    variances = {c: (rng.random((h, w, 3)) * 1e-3).astype(np.float32) for c in refs}
+    row = evaluate_row(images, refs, ref_variances=variances, frame_stats=stats, error_frames=6)
+    row_mask = coverage_mask(images, refs)
+    for column in ("indirect", "indirect_visible", "combined"):
+        image_name, parts = COMPARISONS[column]
+        reference = np.asarray(sum(refs[p] for p in parts), np.float32)
+        variance = np.asarray(sum(variances[p] for p in parts), np.float32)
+        plain = reference_decomposition(*(stats[frame_stat_image(image_name, s)] for s in ("mean", "var", "flicker")),
+                                        reference, variance, row_mask, 6)
+        for metric, (value, ci) in plain.items():
+            got = {"v": row[metric_column(metric, column)], "ci": row[interval_column(metric, column)]}
+            assert same(got, {"v": value, "ci": ci}), (column, metric)
+
+
 def test_flip_reach_covers_flips_filters():
     # FLIP's spatial filter radius at 67 ppd is 10 pixels (its widest Gaussian), the feature filter's 9
     assert M.FLIP_REACH >= 10
