@@ -121,6 +121,49 @@ def test_a_slower_machine_scales_the_prior():
     assert prior.method_scale("m") == 1.0                       # the prior itself is unchanged
 
 
+def test_a_fresh_machine_scales_the_prior_by_its_speed():
+    """With nothing measured locally, the prior is scaled by this machine's probe over the prior's own:
+    the methods (and shared passes) by the GL probe, metrics and set-up by the numpy one."""
+    from bench.run.probe import speed_ratios
+    prior = cost.CostModel(frame={"m": cost.Linear(coef={"pixels": 1e-6})}, metrics_s_per_pixel=1e-6,
+                           setup=cost.Linear(const=10.0), provenance={"probe": {"gl_s": 0.04, "cpu_s": 0.10}})
+    local = prior.local([], [], [], probe=lambda: {"gl_s": 0.02, "cpu_s": 0.15})
+    assert local.method_scale("m") == pytest.approx(0.5)
+    assert local.method_scale("anything") == pytest.approx(0.5)
+    assert local.metrics_s_per_pixel == pytest.approx(1.5e-6)
+    assert local.setup({"triangles": 1e6}) == pytest.approx(15.0)
+    assert local.provenance["speed"] == {"gl": pytest.approx(0.5), "cpu": pytest.approx(1.5)}
+    assert prior.method_scale("m") == 1.0 and prior.metrics_s_per_pixel == 1e-6   # the prior is unchanged
+    # a prior without a probe (or a failed measurement) is not scaled
+    assert speed_ratios({"gl_s": 0.02}, None) == {"gl": 1.0, "cpu": 1.0}
+    assert speed_ratios({"gl_s": 0.0, "cpu_s": 0.1}, {"gl_s": 0.04, "cpu_s": 0.1}) == {"gl": 1.0, "cpu": 1.0}
+
+
+def test_what_the_machine_measured_beats_its_probe():
+    """Cached rows and earlier runs scale the prior; the probe is then not even measured."""
+    prior = cost.CostModel(frame={"m": cost.Linear(coef={"pixels": 1e-6})}, provenance={"probe": {"gl_s": 1, "cpu_s": 1}})
+    sample = cost.Sample(method="m", terms={"pixels": 1e5, "triangles": 10.0}, own_frame_s=0.3, shared_frame_s=0.0,
+                         prepare_s=0.0, frames_total_s=1.0, error_s=0.0, error_frames=1, error_renders=0,
+                         timing_budget_s=None, frames=3, warmup=1, other_s=None, images=3)
+    history = [{"setup_s": 3.0, "triangles": 1000, "metrics_s_per_pixel": 2e-6},
+               {"setup_s": 5.0, "triangles": 3000, "metrics_s_per_pixel": 4e-6}]
+
+    def no_probe():
+        raise AssertionError("the probe ran although the machine's own measurements were there")
+    local = prior.local([sample] * cost.MIN_LOCAL_ROWS, [], history, probe=no_probe)
+    assert local.method_scale("m") == pytest.approx(3.0)
+    assert local.metrics_s_per_pixel == pytest.approx(3e-6)
+
+
+def test_the_probe_measures_gl_and_numpy_work():
+    from bench.gl.context import create_context
+    from bench.run import probe
+    probe._MEASURED.clear()
+    measured = probe.machine_probe(create_context())
+    assert set(measured) == {"gl_s", "cpu_s"} and all(0 < v < 60 for v in measured.values())
+    assert probe.machine_probe(None) == measured   # once per process
+
+
 # ---------------------------------------------------------------------------- the plan
 def test_plan_prints_and_renders_nothing(monkeypatch, capsys, tmp_path, fixed_costs):
     import bench.cli as cli

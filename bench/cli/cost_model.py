@@ -54,6 +54,7 @@ def main(args) -> int:
         per_pixel = [r["metrics_s_per_pixel"] for r in runs if r.get("metrics_s_per_pixel")]
         if per_pixel:
             model.metrics_s_per_pixel = statistics.median(per_pixel)
+    model.provenance["probe"] = fitting_machine_probe(runs)
     for run, group in samples.items():
         ratios = [p / a for p, a in (predicted_and_actual(model, s) for s in group) if a > 0]
         predicted = sum(predicted_and_actual(model, s)[0] for s in group)
@@ -65,6 +66,19 @@ def main(args) -> int:
         cost.PRIOR_FILE.write_text(json.dumps(model.to_json(), indent=1, sort_keys=True) + "\n")
         print(f"wrote {cost.PRIOR_FILE}")
     return 0
+
+
+def fitting_machine_probe(runs: list[dict]) -> dict:
+    """The speed of the machine the runs were made on (bench.run.probe), which a plan on another
+    machine scales the prior by: the median of what the runs' plans measured, or, for runs made
+    before plans measured it, measured now (the runs must be this machine's, as the command says)."""
+    from bench.run.probe import machine_probe
+    probes = [r["probe"] for r in runs if isinstance(r.get("probe"), dict)]
+    if probes:
+        keys = sorted(set().union(*probes))
+        return {k: statistics.median(p[k] for p in probes if isinstance(p.get(k), (int, float))) for k in keys}
+    from bench.gl.context import create_context
+    return machine_probe(create_context())
 
 
 def predicted_and_actual(model: cost.CostModel, s: cost.Sample) -> tuple[float, float]:

@@ -308,9 +308,12 @@ class CostModel:
         except (OSError, ValueError):
             return cls(provenance={"source": "none: no cost_prior.json"})
 
-    def local(self, samples: list[Sample], reference_metas: list[dict] = (), history: list[dict] = ()) -> "CostModel":
+    def local(self, samples: list[Sample], reference_metas: list[dict] = (), history: list[dict] = (),
+              probe=None) -> "CostModel":
         """This prior scaled to the machine: methods by their cached rows, references by the cached
-        references' seconds, metrics and set-up by earlier runs (a copy; the prior is unchanged)."""
+        references' seconds, metrics and set-up by earlier runs (a copy; the prior is unchanged).
+        Where those have measured nothing, by the machine's speed: `probe`, a callable returning this
+        machine's bench.run.probe.machine_probe (called only then), over the prior's own probe."""
         model = CostModel.from_json(self.to_json())
         ratios: dict = {}
         for s in samples:
@@ -318,7 +321,15 @@ class CostModel:
             if predicted > 0 and s.own_frame_s > 0:
                 ratios.setdefault(s.method, []).append(s.own_frame_s / predicted)
         everyone = [r for rs in ratios.values() for r in rs]
-        overall = statistics.median(everyone) if everyone else 1.0
+        metrics = [h["metrics_s_per_pixel"] for h in history if _num(h.get("metrics_s_per_pixel"))]
+        setups = [h for h in history if _num(h.get("setup_s")) and _num(h.get("triangles")) is not None]
+        speed = {"gl": 1.0, "cpu": 1.0}
+        if probe is not None and (not everyone or not metrics or len(setups) < 2):
+            from bench.run.probe import speed_ratios
+            here = probe()
+            speed = speed_ratios(here, self.provenance.get("probe"))
+            model.provenance["probe_here"] = here
+        overall = statistics.median(everyone) if everyone else speed["gl"]
         model.scale = {m: (statistics.median(rs) if len(rs) >= MIN_LOCAL_ROWS else overall) for m, rs in ratios.items()}
         model.scale["*"] = overall
         refs, spp = fit_references(reference_metas)
@@ -331,16 +342,18 @@ class CostModel:
         ratios = [r for r in (phase_ratio(h, "sequences") for h in history[-10:]) if r is not None]
         if ratios:   # the sequence rows likewise
             model.sequence_scale = self.sequence_scale * statistics.median(ratios)
-        metrics = [h["metrics_s_per_pixel"] for h in history if _num(h.get("metrics_s_per_pixel"))]
         if metrics:
             model.metrics_s_per_pixel = statistics.median(metrics[-10:])
-        setups = [h for h in history if _num(h.get("setup_s")) and _num(h.get("triangles")) is not None]
+        else:
+            model.metrics_s_per_pixel = self.metrics_s_per_pixel * speed["cpu"]
         if len(setups) >= 2:
             model.setup = fit_linear([{"triangles": h["triangles"]} for h in setups[-20:]],
                                      [h["setup_s"] for h in setups[-20:]])
-        model.provenance = dict(self.provenance, local_rows=len(samples), local_references=len(reference_metas),
+        else:
+            model.setup = Linear({k: v * speed["cpu"] for k, v in self.setup.coef.items()}, self.setup.const * speed["cpu"])
+        model.provenance = dict(model.provenance, local_rows=len(samples), local_references=len(reference_metas),
                                 local_runs=len(history), reference_scale=model.reference_scale,
-                                sequence_scale=model.sequence_scale)
+                                sequence_scale=model.sequence_scale, speed=speed)
         return model
 
     # -------------------------------------------------------------- predictions
@@ -447,7 +460,8 @@ def run_phases(run_dir: Path) -> dict | None:
            "references_ratio": phase_ratio(manifest.get("phases_predicted_vs_actual") or {}, "references"),
            "reference_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("reference_scale", 1.0)),
            "sequences_ratio": phase_ratio(manifest.get("phases_predicted_vs_actual") or {}, "sequences"),
-           "sequence_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("sequence_scale", 1.0))}
+           "sequence_scale": float(((manifest.get("plan") or {}).get("model") or {}).get("sequence_scale", 1.0)),
+           "probe": ((manifest.get("plan") or {}).get("model") or {}).get("probe_here")}
     judged = df[df["status"].astype(str).isin(["ok", "cached"])] if "status" in df else df.iloc[0:0]
     pixels = (judged["width"] * judged["height"]).sum() if len(judged) else 0
     if pixels and float(phases.get("metrics", 0.0)) > 0:
