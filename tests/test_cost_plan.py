@@ -41,7 +41,8 @@ def fixed_costs(monkeypatch, tmp_path):
 
 def small_config(tmp_path, **kw) -> RunConfig:
     base = dict(scenes=[make_open_box()], methods=["direct", "ssdo"], width=32, height=24, frames=1, warmup=1,
-                references=False, ladders=True, error_frames=1, progress=False, out=tmp_path / "run")
+                references=False, ladders=True, error_frames=1, progress=False, out=tmp_path / "run",
+                budget_margin=0.0)   # the budgets below are exact sums of the fixed costs
     base.update(kw)
     return RunConfig(**base)
 
@@ -332,3 +333,18 @@ def test_what_earlier_runs_taught_the_local_model_does_not_change_the_choice(tmp
     after = serial.plan_only(cfg)
     assert [r.status for r in after.rows] == [r.status for r in before.rows]
     assert after.total() > before.total() + 2 * ROW_S
+
+
+def test_a_budget_leaves_a_margin_for_timing_noise(tmp_path, fixed_costs):
+    """Rows are chosen to fill (1 - budget_margin) of the budget (the default margin 0.15: a run that
+    is 10-20% slower than predicted still ends the rows it chose, and a second run renders nothing)."""
+    from bench.run.config import RunConfig as Config
+    assert Config(scenes=["cornell_spot"], methods=["direct"]).budget_margin == 0.15
+    full = serial.plan_only(small_config(tmp_path, budget_s=1550.0))
+    margin = serial.plan_only(small_config(tmp_path, budget_s=1550.0, budget_margin=0.15))
+    kept = lambda p: sum(r.status != "over budget" for r in p.rows)
+    assert kept(margin) < kept(full)
+    assert margin.total() <= 0.85 * 1550.0 < full.total()
+    assert "rows chosen for 85% of it" in margin.summary() and "rows chosen" not in full.summary()
+    with pytest.raises(ValueError, match="budget_margin"):
+        small_config(tmp_path, budget_s=1550.0, budget_margin=1.0).validate()

@@ -70,6 +70,7 @@ class RunPlan:
     views: dict                         # (scene, view) -> {"shared_passes": s, "references": s}
     setup_s: float
     budget_s: float | None = None
+    budget_margin: float = 0.0   # the share of the budget left unchosen (apply_budget)
     model: dict = field(default_factory=dict)      # the model's provenance
     metrics_per_row_s: float = 0.0
     view_cost: dict = field(default_factory=dict)  # (scene, view) -> cold cost of its defaults (apply_budget)
@@ -137,13 +138,19 @@ class RunPlan:
         for r in self.rows:
             counts[r.status] = counts.get(r.status, 0) + 1
         return (", ".join(f"{n} {status}" for status, n in sorted(counts.items())) + f"; predicted "
-                f"{fmt_duration(self.total())}" + (f" of a {fmt_duration(self.budget_s)} budget" if self.budget_s else ""))
+                f"{fmt_duration(self.total())}" + self._budget_words())
+
+    def _budget_words(self) -> str:
+        if not self.budget_s:
+            return ""
+        margin = f", rows chosen for {1.0 - self.budget_margin:.0%} of it" if self.budget_margin else ""
+        return f" of a {fmt_duration(self.budget_s)} budget{margin}"
 
     def to_json(self) -> dict:
         counts: dict = {}
         for r in self.rows:
             counts[r.status] = counts.get(r.status, 0) + 1
-        return {"budget_s": self.budget_s, "predicted_s": {k: round(v, 2) for k, v in self.phases().items()},
+        return {"budget_s": self.budget_s, "budget_margin": self.budget_margin, "predicted_s": {k: round(v, 2) for k, v in self.phases().items()},
                 "predicted_total_s": round(self.total(), 2), "rows": counts, "model": self.model}
 
     def table(self) -> str:
@@ -171,7 +178,7 @@ class RunPlan:
         phases = self.phases()
         lines.append("predicted: " + ", ".join(f"{p} {v:.0f}s" for p, v in phases.items() if v >= 0.5)
                      + f"; total {fmt_duration(self.total())}"
-                     + (f" of a {fmt_duration(self.budget_s)} budget" if self.budget_s else ""))
+                     + self._budget_words())
         return "\n".join(lines)
 
 
@@ -370,8 +377,9 @@ def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, s
     return first_s, max(total - first_s, 0.0)
 
 
-def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
-    """Keep the rows that fit `budget_s`, by priority (defaults, ladder ends, middles; the defaults
+def apply_budget(plan: RunPlan, budget_s: float, margin: float = 0.0) -> RunPlan:
+    """Keep the rows that fit (1 - `margin`) of `budget_s` (RunConfig.budget_margin: the rest is
+    left for the machine's timing noise, so that the run ends what it chose), by priority (defaults, ladder ends, middles; the defaults
     of the views whose defaults cost least first), each view's references and shared passes
     counted with its first kept row; mark the rest over budget.
 
@@ -379,7 +387,7 @@ def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
     caches hold does not change which rows a budget keeps, so the same command gives the same
     rows, and a second run of it renders nothing new (a cached row is then cheap: its run is
     shorter, not fuller). A larger budget, or none, is how a run gets more rows."""
-    plan.budget_s = float(budget_s)
+    plan.budget_s, plan.budget_margin = float(budget_s), float(margin)
     spent = plan.setup_s
     opened: set = set()       # views whose references and first shared passes are counted
     passes: set = set()       # (view, priority level): a budgeted run visits a view once per level
@@ -402,7 +410,7 @@ def apply_budget(plan: RunPlan, budget_s: float) -> RunPlan:
         view_cost = (0.0 if key in opened else view["cold_references"]) + \
             (0.0 if (key, row.priority) in passes else view["cold_shared"])
         cost_s = row.cold + view_cost
-        if spent + cost_s <= budget_s:
+        if spent + cost_s <= budget_s * (1.0 - margin):
             spent += cost_s
             opened.add(key)
             passes.add((key, row.priority))

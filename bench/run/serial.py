@@ -174,7 +174,7 @@ class Runner:
         facts = {name: compute_facts(s) for name, s in scenes.items()}
         self.plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=self.resolved, sequences=self.sequences)
         if cfg.budget_s is not None:
-            budget.apply_budget(self.plan, cfg.budget_s)
+            budget.apply_budget(self.plan, cfg.budget_s, cfg.budget_margin)
             # defaults first: a short budget cuts the middles (the sequence rows run after, on their own)
             jobs = self.jobs = [j for j in self.plan.ordered_jobs() if j.scene in scenes]
         if cfg.budget_s is not None or cfg.progress:   # a quiet run (--no-progress) says only what goes wrong
@@ -523,7 +523,7 @@ def plan_only(cfg: RunConfig) -> budget.RunPlan:
     facts = {name: compute_facts(s) for name, s in scenes.items()}
     run_plan = budget.make_plan(cfg, scenes, facts, jobs, ctx, resolved=resolved, sequences=sequences)
     if cfg.budget_s is not None:
-        budget.apply_budget(run_plan, cfg.budget_s)
+        budget.apply_budget(run_plan, cfg.budget_s, cfg.budget_margin)
     return run_plan
 
 
