@@ -348,3 +348,27 @@ def test_a_budget_leaves_a_margin_for_timing_noise(tmp_path, fixed_costs):
     assert "rows chosen for 85% of it" in margin.summary() and "rows chosen" not in full.summary()
     with pytest.raises(ValueError, match="budget_margin"):
         small_config(tmp_path, budget_s=1550.0, budget_margin=1.0).validate()
+
+
+def test_a_guarded_row_costs_nothing_and_opens_no_view():
+    """A row its method's guard skips renders nothing and fetches no reference: the run's clock
+    neither counts its view's references nor refuses the rows after it (a default run refused all
+    its scenes in motion at a third of its budget: the guarded rows of views the budget had left
+    out had opened them, and their reference refinement was counted as still to come)."""
+    import time
+    from types import SimpleNamespace
+    from bench.run.plan import Job
+    views = {("big", "main"): {"shared_passes": 0.0, "references": 500.0, "references_refinement": 450.0,
+                               "cold_references": 500.0, "cold_shared": 0.0},
+             ("small", "main"): {"shared_passes": 0.0, "references": 10.0, "references_refinement": 5.0,
+                                 "cold_references": 10.0, "cold_shared": 0.0}}
+    guarded = budget.PlannedRow(Job("big", "main", "manylights", 0, {}), 0, "guard", {}, "its method's guard skips it")
+    small = budget.PlannedRow(Job("small", "main", "direct", 0, {}), 0, "render", {"timing": 20.0}, cold=20.0)
+    plan = budget.RunPlan(rows=[guarded, small], views=views, setup_s=0.0, budget_s=100.0)
+    runner = serial.Runner.__new__(serial.Runner)
+    runner.cfg, runner.plan, runner.started = SimpleNamespace(budget_s=100.0), plan, time.perf_counter()
+    runner._opened_views, runner.rows, runner._planned_done = set(), [], 0.0
+    assert runner._over_budget(guarded.job) is None
+    assert ("big", "main") not in runner._opened_views and runner._planned_done == 0.0
+    assert runner._over_budget(small.job) is None
+    assert runner._opened_views == {("small", "main")}

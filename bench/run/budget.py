@@ -114,13 +114,18 @@ class RunPlan:
         only row, nor a whole cheap view for an expensive one."""
         return [r.job for r in sorted(self.rows, key=self.rank)]   # stable: job order within a level
 
-    def job_seconds(self, job) -> float:
-        """Predicted seconds of one job's row (0 for a job the plan does not know)."""
+    def planned_row(self, job):
+        """The plan's row of one job (None for a job the plan does not know)."""
         where = (job.scene, job.view, job.method, job.index)
         for r in self.rows:
             if (r.job.scene, r.job.view, r.job.method, r.job.index) == where:
-                return r.total
-        return 0.0
+                return r
+        return None
+
+    def job_seconds(self, job) -> float:
+        """Predicted seconds of one job's row (0 for a job the plan does not know)."""
+        row = self.planned_row(job)
+        return row.total if row is not None else 0.0
 
     def finish_seconds(self, views: set, rows: int) -> float:
         """What the end of a run still costs for `rows` rows over `views`: their metrics and the
