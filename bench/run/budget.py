@@ -71,6 +71,7 @@ class RunPlan:
     setup_s: float
     budget_s: float | None = None
     budget_margin: float = 0.0   # the share of the budget left unchosen (apply_budget)
+    cold_setup_s: float | None = None   # the prior's set-up, what a budget chooses by (None: setup_s)
     model: dict = field(default_factory=dict)      # the model's provenance
     metrics_per_row_s: float = 0.0
     view_cost: dict = field(default_factory=dict)  # (scene, view) -> cold cost of its defaults (apply_budget)
@@ -280,8 +281,9 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
     planned += sequence_rows
     views.update(sequence_views)
     metrics_per_row = model.metrics_s_per_pixel * cfg.width * cfg.height if cfg.references else 0.0
-    setup_s = model.setup({"triangles": sum(f.triangle_count for f in [*facts.values(), *sequence_facts])})
-    return RunPlan(rows=planned, views=views, setup_s=setup_s, model=model.provenance,
+    triangles = {"triangles": sum(f.triangle_count for f in [*facts.values(), *sequence_facts])}
+    return RunPlan(rows=planned, views=views, setup_s=model.setup(triangles), cold_setup_s=prior.setup(triangles),
+                   model=model.provenance,
                    metrics_per_row_s=metrics_per_row)
 
 
@@ -393,7 +395,7 @@ def apply_budget(plan: RunPlan, budget_s: float, margin: float = 0.0) -> RunPlan
     rows, and a second run of it renders nothing new (a cached row is then cheap: its run is
     shorter, not fuller). A larger budget, or none, is how a run gets more rows."""
     plan.budget_s, plan.budget_margin = float(budget_s), float(margin)
-    spent = plan.setup_s
+    spent = plan.setup_s if plan.cold_setup_s is None else plan.cold_setup_s   # the prior's: the same rows every run
     opened: set = set()       # views whose references and first shared passes are counted
     passes: set = set()       # (view, priority level): a budgeted run visits a view once per level
     # the defaults view by view, the cheapest views first: a budget too small for every view's
