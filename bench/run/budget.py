@@ -156,7 +156,8 @@ class RunPlan:
         counts: dict = {}
         for r in self.rows:
             counts[r.status] = counts.get(r.status, 0) + 1
-        return {"budget_s": self.budget_s, "budget_margin": self.budget_margin, "predicted_s": {k: round(v, 2) for k, v in self.phases().items()},
+        return {"budget_s": self.budget_s, "budget_margin": self.budget_margin,
+                "predicted_s": {k: round(v, 2) for k, v in self.phases().items()},
                 "predicted_total_s": round(self.total(), 2), "rows": counts, "model": self.model}
 
     def table(self) -> str:
@@ -386,9 +387,10 @@ def reference_seconds(model: cost.CostModel, cfg: RunConfig, scene, view: str, s
 
 def apply_budget(plan: RunPlan, budget_s: float, margin: float = 0.0) -> RunPlan:
     """Keep the rows that fit (1 - `margin`) of `budget_s` (RunConfig.budget_margin: the rest is
-    left for the machine's timing noise, so that the run ends what it chose), by priority (defaults, ladder ends, middles; the defaults
-    of the views whose defaults cost least first), each view's references and shared passes
-    counted with its first kept row; mark the rest over budget.
+    left for the machine's timing noise, so that the run ends what it chose), by priority
+    (defaults, ladder ends, middles; the defaults of the views whose defaults cost least first),
+    each view's references and shared passes counted with its first kept row; mark the rest over
+    budget.
 
     The choice is made on the cold costs (every row rendered, every reference rendered): what the
     caches hold does not change which rows a budget keeps, so the same command gives the same
