@@ -25,6 +25,8 @@ import time
 
 import numpy as np
 
+from bench.protocol.vocabulary import FRAME_STAT_IMAGES
+
 PROBE_SCENE, PROBE_CAMERA, PROBE_SIZE = "cornell_spot", "main", (160, 90)
 PROBE_METHOD, PROBE_PARAMS = "ir_unshadowed", {"vpl_count": 256}   # a 40 ms frame on llvmpipe, 2 cores
 PROBE_FRAMES = 5
@@ -40,7 +42,8 @@ def _gl_seconds(ctx) -> float:
     scene = load_scene(PROBE_SCENE)
     cls = load_method(PROBE_METHOD)
     width, height = PROBE_SIZE
-    result = run_method(ctx, cls, scene, PROBE_CAMERA, width, height, dict(PROBE_PARAMS), seed=0, warmup=1, frames=PROBE_FRAMES)
+    result = run_method(ctx, cls, scene, PROBE_CAMERA, width, height, dict(PROBE_PARAMS), seed=0, warmup=1,
+                        frames=PROBE_FRAMES)
     return float(np.median(result.frame_ms)) / 1e3
 
 
@@ -49,10 +52,7 @@ def _synthetic_row(size: int):
     base = (rng.random((size, size, 3)) ** 2).astype(np.float32)
     refs = {"direct": base, "indirect_unshadowed": base * 0.5, "indirect_visible": base * 0.4}
     images = {"direct": base * 1.1, "indirect": base * 0.45, "combined": base * 1.55}
-    stats = {}
-    from bench.protocol.vocabulary import FRAME_STAT_IMAGES
-    for name in FRAME_STAT_IMAGES:
-        stats[name] = (rng.random((size, size, 3)) * 0.1).astype(np.float32)
+    stats = {name: (rng.random((size, size, 3)) * 0.1).astype(np.float32) for name in FRAME_STAT_IMAGES}
     return images, refs, stats
 
 
