@@ -373,3 +373,26 @@ def test_a_guarded_row_costs_nothing_and_opens_no_view():
     assert ("big", "main") not in runner._opened_views and runner._planned_done == 0.0
     assert runner._over_budget(small.job) is None
     assert runner._opened_views == {("small", "main")}
+
+
+def test_the_timed_frames_count_the_stage_clocks_own_frames():
+    """Under a finish-fenced stage clock the harness renders the stage frames apart, after the timed
+    ones: a row costs warm-up + timed + stage frames. A model that left them out fitted one factor
+    for rows of 4 frames (a slow method at the minimum count) and of 100 (a fast one filling its
+    timing budget), and under-predicted the slow ones (quick mode's timing: 132 s predicted, 191 s)."""
+    def sample(own_s, budget_s, stage):
+        timed = min(max(3, budget_s / own_s), cost.TIMED_MAX_FRAMES)
+        return cost.Sample(method="m", terms={"pixels": 1.0}, own_frame_s=own_s, shared_frame_s=0.0, prepare_s=0.0,
+                           frames_total_s=(1 + timed + stage) * own_s, error_s=None, error_frames=1, error_renders=0,
+                           timing_budget_s=budget_s, frames=3, warmup=1, other_s=None, images=2, stage_frames=stage)
+    samples = [sample(own, budget, stage) for own in (0.002, 0.02, 0.2, 2.0) for budget in (0.3, 1.0)
+               for stage in (0, 3)]
+    model = cost.CostModel.fit(samples)
+    for s in samples:
+        predicted = model.timed(cost.timed_terms(s.own_frame_s, s.frames, s.timing_budget_s, s.warmup, s.stage_frames))
+        assert predicted == pytest.approx(s.frames_total_s, rel=1e-6)
+    row = {"status": "ok", "method": "direct", "params": "{}", "width": 32, "height": 24, "frame_ms": 5.0,
+           "frames": 3, "warmup": 1, "frames_total_ms": 40.0, "stage_clock": "finish_wall"}
+    facts = {"triangle_count": 12, "total_area_m2": 6.0, "scene_radius": 1.0}
+    assert cost.sample_of(row, facts, 0.3, 1).stage_frames == 3
+    assert cost.sample_of({**row, "stage_clock": "timer_query"}, facts, 0.3, 1).stage_frames == 0

@@ -110,6 +110,7 @@ class Sample:
     images: int             # EXRs the row wrote
     scene: str = ""
     error_rendered: int = 0  # of error_renders, rendered for the statistics alone (after the timed frames)
+    stage_frames: int = 0    # frames rendered apart for the stage times (a finish-fenced stage clock)
 
 
 
@@ -168,11 +169,11 @@ def sample_of(row: dict, scene_facts, timing_budget_s, error_frames: int) -> Sam
     # the first frame's excess over a steady frame (pbgi converges its amortised gather there) is
     # a cost of starting, as the preparation is: it recurs when a sequence restarts the method
     first = _num(row.get("extra.first_frame_ms"))
+    stage = int(_num(row.get("frames"), 3)) if str(row.get("stage_clock")) == "finish_wall" else 0
     if first is not None:
         excess = max(first - own, 0.0) / 1e3
     else:   # older rows: the frames' total less as many steady frames as were rendered
         timed = int(_num(row.get("extra.timing_frames"), _num(row.get("frames"), 3)))
-        stage = int(_num(row.get("frames"), 3)) if str(row.get("stage_clock")) == "finish_wall" else 0
         rendered_frames = int(_num(row.get("warmup"), 1)) + timed + stage
         excess = max(total - rendered_frames * own / 1e3, 0.0)
     prepare, total = prepare + excess, total - excess
@@ -189,7 +190,7 @@ def sample_of(row: dict, scene_facts, timing_budget_s, error_frames: int) -> Sam
                   prepare_s=prepare, frames_total_s=total, error_s=error, error_frames=err_frames,
                   error_renders=renders, error_rendered=int(rendered or 0), timing_budget_s=timing_budget_s,
                   frames=int(_num(row.get("frames"), 3)), warmup=int(_num(row.get("warmup"), 1)), other_s=other,
-                  images=len(row_image_names(err_frames)), scene=str(row.get("scene", "")))
+                  images=len(row_image_names(err_frames)), scene=str(row.get("scene", "")), stage_frames=stage)
 
 
 def samples_from_run(run_dir: Path) -> list[Sample]:
@@ -208,15 +209,16 @@ def samples_from_run(run_dir: Path) -> list[Sample]:
 
 
 # ---------------------------------------------------------------------------- the model
-def timed_terms(own_s: float, frames: int, budget_s, warmup: int = 1) -> dict:
-    """What the wall time of a row's warm-up and timed frames scales with: the frames the harness
-    renders (at least `frames` timed; with a calibrated timing budget, about as many as fill it, at
-    most TimingBudget.max_frames) times the method's own frame, and their count (the per-frame
-    read-back and bookkeeping). The shared passes are lent, measured once per view."""
+def timed_terms(own_s: float, frames: int, budget_s, warmup: int = 1, stage_frames: int = 0) -> dict:
+    """What the wall time of a row's warm-up, timed and stage frames scales with: the frames the
+    harness renders (at least `frames` timed; with a calibrated timing budget, about as many as fill
+    it, at most TimingBudget.max_frames; then, under a finish-fenced stage clock, `stage_frames` more
+    with the profiler on) times the method's own frame, and their count (the per-frame read-back and
+    bookkeeping). The shared passes are lent, measured once per view."""
     n = float(frames)
     if budget_s:
         n = min(max(n, float(budget_s) / own_s if own_s > 0 else TIMED_MAX_FRAMES), TIMED_MAX_FRAMES)
-    n += warmup
+    n += warmup + stage_frames
     return {"rendered_s": n * own_s, "rendered": n}
 
 
@@ -258,7 +260,7 @@ class CostModel:
         for method, group in sorted(by_method.items()):
             model.frame[method] = fit_linear([s.terms for s in group], [s.own_frame_s for s in group])
             model.prepare[method] = fit_linear([s.terms for s in group], [s.prepare_s for s in group])
-        model.timed = fit_linear([timed_terms(s.own_frame_s, s.frames, s.timing_budget_s, s.warmup)
+        model.timed = fit_linear([timed_terms(s.own_frame_s, s.frames, s.timing_budget_s, s.warmup, s.stage_frames)
                                   for s in samples], [s.frames_total_s for s in samples], const=True)
         with_errors = [s for s in samples if s.error_frames > 1]
         # the read-back term is told apart from the rendering only by rows whose timed frames
@@ -376,10 +378,10 @@ class CostModel:
         own = k * self._method_frame(method, terms)
         prep_fit = self.prepare.get(method)
         prepare = k * (prep_fit(terms) if prep_fit is not None else own)
-        timed = timed_terms(own, frames, timing_budget_s, warmup)
+        timed = timed_terms(own, frames, timing_budget_s, warmup, stage_frames)
         timing = self.timed(timed)
         # the error frames the warm-up, timed and stage frames (a fenced stage clock's) do not reach
-        error = (self.error(error_terms(own, error_frames_rendered(renders, timed["rendered"] + stage_frames), renders,
+        error = (self.error(error_terms(own, error_frames_rendered(renders, timed["rendered"]), renders,
                                         terms["pixels"])) if renders else 0.0)
         other = self.other({"pixel_images": terms["pixels"] * images})
         metrics = self.metrics_s_per_pixel * terms["pixels"] if judged else 0.0
