@@ -396,3 +396,40 @@ def test_the_timed_frames_count_the_stage_clocks_own_frames():
     facts = {"triangle_count": 12, "total_area_m2": 6.0, "scene_radius": 1.0}
     assert cost.sample_of(row, facts, 0.3, 1).stage_frames == 3
     assert cost.sample_of({**row, "stage_clock": "timer_query"}, facts, 0.3, 1).stage_frames == 0
+
+
+def test_a_budget_is_filled_at_this_machines_speed(tmp_path, monkeypatch):
+    """The budget chooses by the prior at this machine's speed, the probe measured once per machine
+    and kept in the cache: on a machine twice as fast as the prior's, a row costs half and twice as
+    many fit (the prior alone filled a 3-minute budget with 1m45s of work on such a machine), and
+    every later plan on the machine chooses the same rows without measuring again."""
+    from bench.run import probe
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(cost, "record_history", lambda entry: None)
+    frame = {m: cost.Linear(const=10.0) for m in ("direct", "ssdo")}
+    prior = cost.CostModel(frame=frame, prepare={m: cost.Linear() for m in frame},
+                           timed=cost.Linear(coef={"rendered_s": 1.0}), setup=cost.Linear(), metrics_s_per_pixel=0.0,
+                           provenance={"probe": {"gl_s": 0.04, "cpu_s": 0.1}})
+    monkeypatch.setattr(cost.CostModel, "prior", classmethod(lambda cls: prior))
+    measured = []
+
+    def probe_at(gl_s):
+        def machine_probe(ctx):
+            measured.append(gl_s)
+            return {"gl_s": gl_s, "cpu_s": 0.1}
+        return machine_probe
+
+    monkeypatch.setattr(probe, "machine_probe", probe_at(0.04))   # the prior's own machine
+    row_s = next(r.cold for r in serial.plan_only(small_config(tmp_path)).rows if r.status == "render")
+    budget_s = 2.5 * row_s
+    same = serial.plan_only(small_config(tmp_path, budget_s=budget_s))
+    assert sum(r.status == "render" for r in same.rows) == 2
+    assert measured == [0.04]                                     # measured once, then read from the cache
+    monkeypatch.setenv("GIBENCH_CACHE_DIR", str(tmp_path / "cache2"))   # another machine, twice as fast
+    monkeypatch.setattr(probe, "machine_probe", probe_at(0.02))
+    fast = serial.plan_only(small_config(tmp_path, budget_s=budget_s))
+    assert [r.cold for r in fast.rows] == pytest.approx([0.5 * r.cold for r in same.rows])
+    assert sum(r.status == "render" for r in fast.rows) == 5 > 2
+    assert fast.total() <= budget_s and fast.model["cold_speed"]["gl"] == pytest.approx(0.5)
+    again = serial.plan_only(small_config(tmp_path, budget_s=budget_s))
+    assert [r.status for r in again.rows] == [r.status for r in fast.rows] and measured == [0.04, 0.02]

@@ -28,7 +28,7 @@ from bench.protocol.vocabulary import REFERENCE_COMPONENTS
 from bench.run import cost
 from bench.run.config import RunConfig, sequence_config
 from bench.run.plan import Job
-from bench.run.probe import machine_probe
+from bench.run.probe import stored_machine_probe
 from bench.run.row_cache import RowCache, row_cache_key, row_image_names
 from bench.run.sequence_rows import last_change, sequence_jobs, sequence_key
 
@@ -207,18 +207,26 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
     """Predict every job of a run (nothing renders; the row and reference caches are only read).
 
     Two models: `model` (by default the prior scaled by what this machine's caches and earlier
-    runs measured) predicts what the run will take; the shipped prior alone gives the cold costs a
-    budget chooses by, so that the choice depends on the command and the checkout, not on what
-    earlier runs taught the local model (a second run of a command keeps its rows, from the cache).
-    The run's clock (bench.run.serial) still stops rows a slower machine has no time for. Where
-    this machine's caches and earlier runs have measured nothing, `model` is the prior scaled by
-    the machine's speed (bench.run.probe: about a second of GL and numpy work)."""
+    runs measured) predicts what the run will take; the shipped prior at this machine's speed
+    (bench.run.probe: about a second of GL and numpy work, measured once per machine and kept in
+    the cache) gives the cold costs a budget chooses by, so that the choice depends on the command,
+    the checkout and the machine, not on what earlier runs taught the local model (a second run of
+    a command keeps its rows, from the cache), and a budget is filled on a fast machine as on a
+    slow one. The run's clock (bench.run.serial) still stops rows the machine has no time for.
+    Where this machine's caches and earlier runs have measured nothing, `model` is that same
+    prior at the machine's speed."""
     renderer, clock = ctx.info.get("GL_RENDERER", ""), default_clock(ctx)
-    prior = cost.CostModel.prior()
+
+    def probe():
+        return stored_machine_probe(ctx)
+    shipped = cost.CostModel.prior()
+    prior = shipped.at_speed(probe)   # the cold costs of this machine: what a budget chooses by
     if model is None:
         by_hash = {f.content_hash: f for f in facts.values()}
-        model = prior.local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history(),
-                            probe=lambda: machine_probe(ctx))
+        model = shipped.local(cost.cached_samples(by_hash), cost.reference_metas(), cost.read_history(), probe=probe)
+    if prior.provenance.get("probe_here"):
+        model.provenance = dict(model.provenance, probe_here=prior.provenance["probe_here"],
+                                cold_speed=prior.provenance["speed"])
     rows_cache = RowCache(log=lambda m: None)
     stage_frames = int(cfg.frames) if clock == "finish_wall" else 0   # a fenced stage clock times them apart
     counts: dict = {}

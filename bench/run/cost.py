@@ -310,6 +310,22 @@ class CostModel:
         except (OSError, ValueError):
             return cls(provenance={"source": "none: no cost_prior.json"})
 
+    def at_speed(self, probe) -> "CostModel":
+        """This prior at a machine's speed (a copy; the prior is unchanged): `probe`, a callable
+        returning the machine's bench.run.probe.machine_probe (called only when the prior records
+        its fitting machine's), over the prior's own; the methods and the shared passes by the GL
+        ratio, the metrics and the set-up by the numpy one. What a budget chooses by
+        (bench.run.budget.make_plan): the cold costs of this machine, whatever its caches hold."""
+        from bench.run.probe import speed_ratios
+        model = CostModel.from_json(self.to_json())
+        here = probe() if probe is not None and self.provenance.get("probe") else None
+        speed = speed_ratios(here, self.provenance.get("probe"))
+        model.scale = {**self.scale, "*": self.method_scale("*") * speed["gl"]}
+        model.metrics_s_per_pixel = self.metrics_s_per_pixel * speed["cpu"]
+        model.setup = Linear({k: v * speed["cpu"] for k, v in self.setup.coef.items()}, self.setup.const * speed["cpu"])
+        model.provenance = dict(model.provenance, probe_here=here, speed=speed)
+        return model
+
     def local(self, samples: list[Sample], reference_metas: list[dict] = (), history: list[dict] = (),
               probe=None) -> "CostModel":
         """This prior scaled to the machine: methods by their cached rows, references by the cached
@@ -327,9 +343,8 @@ class CostModel:
         setups = [h for h in history if _num(h.get("setup_s")) and _num(h.get("triangles")) is not None]
         speed = {"gl": 1.0, "cpu": 1.0}
         if probe is not None and (not everyone or not metrics or len(setups) < 2):
-            from bench.run.probe import speed_ratios
             here = probe()
-            speed = speed_ratios(here, self.provenance.get("probe"))
+            speed = self.at_speed(lambda: here).provenance["speed"]
             model.provenance["probe_here"] = here
         overall = statistics.median(everyone) if everyone else speed["gl"]
         model.scale = {m: (statistics.median(rs) if len(rs) >= MIN_LOCAL_ROWS else overall) for m, rs in ratios.items()}

@@ -20,6 +20,9 @@ scale from the runs' history.
 """
 from __future__ import annotations
 
+import json
+import os
+import platform
 import statistics
 import time
 
@@ -74,6 +77,40 @@ def machine_probe(ctx) -> dict:
     if not _MEASURED:
         _MEASURED.update(gl_s=_gl_seconds(ctx), cpu_s=_cpu_seconds())
     return dict(_MEASURED)
+
+
+def machine_key(ctx) -> str:
+    """What names this machine's speed: the host, its cores and its GL renderer."""
+    renderer = ctx.info.get("GL_RENDERER", "") if ctx is not None else ""
+    return f"{platform.node()}|{os.cpu_count()}|{renderer}"
+
+
+def stored_machine_probe(ctx) -> dict:
+    """This machine's probe, measured once and kept in the cache (`<cache>/cost/machine_probe.json`,
+    keyed by machine_key): every later plan on the machine scales the prior by the same figures, so a
+    budget keeps the same rows run after run (bench.run.budget.make_plan), as a per-run measurement,
+    5% noisy, would not at the budget's edge."""
+    from bench.run.config import cache_root
+    path, key = cache_root() / "cost" / "machine_probe.json", machine_key(ctx)
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, ValueError):
+        stored = {}
+    if not isinstance(stored, dict):
+        stored = {}
+    kept = stored.get(key)
+    if isinstance(kept, dict) and all(isinstance(kept.get(k), (int, float)) and kept[k] > 0 for k in ("gl_s", "cpu_s")):
+        return {"gl_s": float(kept["gl_s"]), "cpu_s": float(kept["cpu_s"])}
+    measured = machine_probe(ctx)
+    stored[key] = measured
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f"{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps(stored, indent=1, sort_keys=True))
+        os.replace(tmp, path)
+    except OSError:   # a read-only cache: measured again next time
+        pass
+    return measured
 
 
 def speed_ratios(here: dict | None, fitted: dict | None) -> dict:
