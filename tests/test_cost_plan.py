@@ -268,6 +268,7 @@ def test_quick_is_a_five_minute_budget_over_the_default_corpus(monkeypatch):
     from tests.conftest import cli_run_config
     cfg = cli_run_config(monkeypatch, ["run", "--quick"])
     assert cfg.budget_s == options.QUICK_BUDGET_S == 300.0
+    assert cfg.budget_margin == options.QUICK_BUDGET_MARGIN == 0.25 > cli_run_config(monkeypatch, ["run"]).budget_margin
     assert list(cfg.scenes) == list(options.DEFAULT_SCENES) and cfg.ladders
     assert cli_run_config(monkeypatch, ["run", "--quick", "--budget", "2m"]).budget_s == 120.0
     assert cli_run_config(monkeypatch, ["run"]).budget_s is None

@@ -87,6 +87,7 @@ def fitting_machine_probe(runs: list[dict]) -> dict:
 def predicted_and_actual(model: cost.CostModel, s: cost.Sample) -> tuple[float, float]:
     """A measured row's rendering seconds (preparation, timed and error frames, the rest) and the model's."""
     p = model.row(s.method, s.terms, frames=s.frames, warmup=s.warmup, timing_budget_s=s.timing_budget_s,
-                  error_frames=s.error_frames, renders=s.error_renders, images=s.images, judged=False)
+                  error_frames=s.error_frames, renders=s.error_renders, images=s.images, judged=False,
+                  stage_frames=s.stage_frames)
     predicted = p["precompute"] + p["timing"] + p["error_frames"] + p["rows_other"]
     return predicted, s.prepare_s + s.frames_total_s + (s.error_s or 0.0) + (s.other_s or 0.0)

@@ -29,6 +29,10 @@ DEFAULT_SCENES = ("cornell_spot", "hidden_bounce", "big_floor", "sphere_inside",
 # every method's defaults first, then the ladders' ends, then their middles: bench.run.budget), a
 # short timing budget, fewer reference samples and error frames
 QUICK_BUDGET_S = 300.0
+# --quick chooses rows for 75% of its budget (a run's default margin: 15%): its rows are timed over
+# 3-4 frames for 0.3 s, and a shared host's speed drifts by up to 1.7x within the hour (the probe read
+# 0.022-0.040 s on one machine): with 15%, quick runs took 4m58s and 5m10s for a 5-minute budget
+QUICK_BUDGET_MARGIN = 0.25
 # the scenes in motion of the default run (after its scenes, at RunConfig.sequence_width x height)
 DEFAULT_SEQUENCES = ("rooms_light_sweep", "sponza_camera_walk", "cornell_spot_moving_block")
 REFERENCE_SPP = 1024        # reference spp cap of `run` and `sweep`

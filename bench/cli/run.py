@@ -86,7 +86,8 @@ def main(args) -> int:
                     error_frames=args.error_frames if args.error_frames is not None else
                     (options.QUICK_ERROR_FRAMES if args.quick else options.ERROR_FRAMES), budget_s=run_budget,
                     sequences=sequences, sequence_frames=args.sequence_frames, sequence_rest=args.sequence_rest,
-                    sequence_settle=args.sequence_settle)
+                    sequence_settle=args.sequence_settle,
+                    **({"budget_margin": options.QUICK_BUDGET_MARGIN} if args.quick else {}))
     if args.plan:
         print(serial.plan_only(cfg).table())
         return 0
