@@ -434,3 +434,24 @@ def test_a_budget_is_filled_at_this_machines_speed(tmp_path, monkeypatch):
     assert fast.total() <= budget_s and fast.model["cold_speed"]["gl"] == pytest.approx(0.5)
     again = serial.plan_only(small_config(tmp_path, budget_s=budget_s))
     assert [r.status for r in again.rows] == [r.status for r in fast.rows] and measured == [0.04, 0.02]
+
+
+def test_mitsubas_start_is_counted_once_per_run():
+    """A run that renders references pays Mitsuba's start once (its import and kernels: 20 s in the
+    fitted prior), with its first view's references: a quick run's five small views took 48 s of
+    references for 28 s of samples, the default run's eleven 302 s for 247 s."""
+    from bench.run.plan import Job
+    views = {(v, "main"): {"shared_passes": 0.0, "references": 10.0, "references_refinement": 5.0,
+                           "cold_references": 10.0, "cold_shared": 0.0} for v in ("a", "b")}
+    rows = [budget.PlannedRow(Job(v, "main", "direct", 0, {}), 0, "render", {"timing": 1.0}, cold=1.0) for v in ("a", "b")]
+    plan = budget.RunPlan(rows=rows, views=views, setup_s=0.0, cold_setup_s=0.0, reference_start_s=20.0)
+    assert plan.phases()["references"] == pytest.approx(40.0)
+    budget.apply_budget(plan, 42.0)                      # (1 + 10 + 20) + (1 + 10)
+    assert [r.status for r in plan.rows] == ["render", "render"]
+    budget.apply_budget(plan, 41.0)
+    assert [r.status for r in plan.rows][1] == "over budget" and "(predicted 11 s)" in plan.rows[1].reason
+    cached = budget.RunPlan(rows=rows, views={k: dict(v, references=0.0) for k, v in views.items()}, setup_s=0.0,
+                            reference_start_s=20.0)
+    assert cached.phases()["references"] == 0.0          # every reference stored: Mitsuba does not start
+    fitted = cost.CostModel.prior()
+    assert fitted.reference_start_s > 0 and fitted.reference_scale > 0

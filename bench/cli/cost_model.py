@@ -44,12 +44,19 @@ def main(args) -> int:
             model.setup = cost.fit_linear([{"triangles": r["triangles"]} for r in runs], [r["setup_s"] for r in runs])
         else:   # runs of one corpus size say nothing of how set-up grows with it: a constant
             model.setup = cost.Linear(const=statistics.median(r["setup_s"] for r in runs))
-        scales = [r["reference_scale"] * r["references_ratio"] for r in runs if r.get("references_ratio")]
-        if scales:   # the reference model against the references the last of these runs measured (each
-            # run's ratio is to the model its plan used: older runs' ratios are of another prior; the
-            # median over runs planned by different priors scaled this fit's references 0.5x, 358 s
-            # measured for 191 predicted)
-            model.reference_scale = scales[-1]
+        # the reference model (seconds per sample from the cached references' own Mitsuba time, to the
+        # spp cap) against the references phase the last cold run measured (refinement stopping below
+        # the cap, scene conversion, EXRs): predicted by this fit, not by the plan the run had (its
+        # ratio, applied to a refitted per-sample cost, counted the correction twice: a quick run's
+        # references took 84 s for 43 predicted)
+        measured = [m for m in (cost.run_reference_seconds(model, Path(r)) for r in args.runs) if m is not None]
+        if len(measured) >= 2:   # a scale on the samples and a start once per run (Mitsuba's import, its
+            # kernels' compilation, the scenes in motion's few references): a quick run's 5 small views
+            # took 48 s, the default run's 11 views 302 s
+            fit = cost.fit_linear([{"samples": p} for _, p in measured], [a for a, _ in measured])
+            model.reference_scale, model.reference_start_s = fit.coef.get("samples", 0.0) or 1.0, fit.const
+        elif measured:
+            model.reference_scale = measured[-1][0] / measured[-1][1]
         scales = [r["sequence_scale"] * r["sequences_ratio"] for r in runs if r.get("sequences_ratio")]
         if scales:   # the sequence rows' model against the sequence rows the last of these runs measured
             # (the sequence rows' prediction changed with the planner: older runs' ratios are of another model)

@@ -34,7 +34,7 @@ from bench.run.sequence_rows import last_change, sequence_jobs, sequence_key
 
 ROW_PHASES = ("precompute", "timing", "error_frames", "rows_other", "metrics", "sequences")
 PHASES = ("setup", "shared_passes", "references") + ROW_PHASES
-REFERENCE_FIRST_PASS_SPP = 64   # bench.run.references.ReferenceProvider.REFERENCE_FIRST_PASS_SPP
+REFERENCE_FIRST_PASS_SPP = cost.REFERENCE_FIRST_PASS_SPP   # bench.run.references.ReferenceProvider.REFERENCE_FIRST_PASS_SPP
 PRIORITY_NAMES = ("defaults", "ladder ends", "ladder middles")
 
 
@@ -72,6 +72,7 @@ class RunPlan:
     budget_s: float | None = None
     budget_margin: float = 0.0   # the share of the budget left unchosen (apply_budget)
     cold_setup_s: float | None = None   # the prior's set-up, what a budget chooses by (None: setup_s)
+    reference_start_s: float = 0.0      # once when a view's references render (Mitsuba's start)
     model: dict = field(default_factory=dict)      # the model's provenance
     metrics_per_row_s: float = 0.0
     view_cost: dict = field(default_factory=dict)  # (scene, view) -> cold cost of its defaults (apply_budget)
@@ -92,6 +93,8 @@ class RunPlan:
                 out[p] += v
         for key in self._kept_views():
             out["references"] += self.views[key]["references"]
+        if out["references"] > 0:
+            out["references"] += self.reference_start_s
         for key, _ in self._kept_passes():   # under a budget a view is visited once per priority level
             out["shared_passes"] += self.views[key]["shared_passes"]
         return out
@@ -292,6 +295,7 @@ def make_plan(cfg: RunConfig, scenes: dict, facts: dict, jobs: list, ctx, model:
     metrics_per_row = model.metrics_s_per_pixel * cfg.width * cfg.height if cfg.references else 0.0
     triangles = {"triangles": sum(f.triangle_count for f in [*facts.values(), *sequence_facts])}
     return RunPlan(rows=planned, views=views, setup_s=model.setup(triangles), cold_setup_s=prior.setup(triangles),
+                   reference_start_s=model.reference_start_s if cfg.references else 0.0,
                    model=model.provenance,
                    metrics_per_row_s=metrics_per_row)
 
@@ -406,6 +410,7 @@ def apply_budget(plan: RunPlan, budget_s: float, margin: float = 0.0) -> RunPlan
     shorter, not fuller). A larger budget, or none, is how a run gets more rows."""
     plan.budget_s, plan.budget_margin = float(budget_s), float(margin)
     spent = plan.setup_s if plan.cold_setup_s is None else plan.cold_setup_s   # the prior's: the same rows every run
+    started_references = False   # Mitsuba's start, with the first view whose references render
     opened: set = set()       # views whose references and first shared passes are counted
     passes: set = set()       # (view, priority level): a budgeted run visits a view once per level
     # the defaults view by view, the cheapest views first: a budget too small for every view's
@@ -426,11 +431,14 @@ def apply_budget(plan: RunPlan, budget_s: float, margin: float = 0.0) -> RunPlan
         view = plan.views[key]
         view_cost = (0.0 if key in opened else view["cold_references"]) + \
             (0.0 if (key, row.priority) in passes else view["cold_shared"])
+        starts = not started_references and key not in opened and view["cold_references"] > 0
+        view_cost += plan.reference_start_s if starts else 0.0
         cost_s = row.cold + view_cost
         if spent + cost_s <= budget_s * (1.0 - margin):
             spent += cost_s
             opened.add(key)
             passes.add((key, row.priority))
+            started_references = started_references or starts
         else:
             row.status, row.reason = "over budget", f"over budget (predicted {math.ceil(cost_s)} s)"
     return plan

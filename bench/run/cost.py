@@ -40,6 +40,7 @@ MIN_LOCAL_ROWS = 3          # cached rows of a method before its own local scale
 HISTORY_KEEP = 200          # runs kept in the history file
 METRICS_PRIOR_S_PER_PIXEL = 1.5e-5   # before any run has measured them: ~0.9 s a row at 320x180
 REFERENCE_FIRST_BATCH_SPP = 4   # reference.api.FIRST_BATCH_SPP
+REFERENCE_FIRST_PASS_SPP = 64   # bench.run.references.ReferenceProvider.REFERENCE_FIRST_PASS_SPP
 TIMED_MAX_FRAMES = 100      # bench.run.harness.TimingBudget.max_frames
 SETUP_PRIOR_S = 12.0        # imports, GL context, scene loading, the plan (Mitsuba's import): the default corpus, cold
 
@@ -244,6 +245,7 @@ class CostModel:
     reference: dict = field(default_factory=dict)   # "scene/component" -> seconds per sample per pixel
     reference_spp: dict = field(default_factory=dict)   # "scene/component" -> fraction of the cap reached
     reference_scale: float = 1.0                    # measured / predicted reference time of runs made with a plan
+    reference_start_s: float = 0.0                  # once per run that renders references (Mitsuba's start, its kernels)
     sequence_scale: float = 1.0                     # measured / predicted sequence rows of runs made with a plan
     metrics_s_per_pixel: float = METRICS_PRIOR_S_PER_PIXEL
     setup: Linear = field(default_factory=lambda: Linear(const=SETUP_PRIOR_S))   # terms: triangles (every scene loaded)
@@ -286,7 +288,7 @@ class CostModel:
                 "timed": self.timed.to_json(), "error": self.error.to_json(), "other": self.other.to_json(),
                 "shared": self.shared.to_json(), "reference": dict(sorted(self.reference.items())),
                 "reference_spp": dict(sorted(self.reference_spp.items())), "reference_scale": self.reference_scale,
-                "sequence_scale": self.sequence_scale,
+                "reference_start_s": self.reference_start_s, "sequence_scale": self.sequence_scale,
                 "metrics_s_per_pixel": self.metrics_s_per_pixel, "setup": self.setup.to_json()}
 
     @classmethod
@@ -298,6 +300,7 @@ class CostModel:
                    reference={k: float(v) for k, v in (d.get("reference") or {}).items()},
                    reference_spp={k: float(v) for k, v in (d.get("reference_spp") or {}).items()},
                    reference_scale=float(d.get("reference_scale", 1.0)),
+                   reference_start_s=float(d.get("reference_start_s", 0.0)),
                    sequence_scale=float(d.get("sequence_scale", 1.0)),
                    metrics_s_per_pixel=float(d.get("metrics_s_per_pixel", METRICS_PRIOR_S_PER_PIXEL)),
                    setup=Linear.from_json(d.get("setup") or {"const": SETUP_PRIOR_S}),
@@ -484,6 +487,33 @@ def run_phases(run_dir: Path) -> dict | None:
     if pixels and float(phases.get("metrics", 0.0)) > 0:
         out["metrics_s_per_pixel"] = float(phases["metrics"]) / float(pixels)
     return out
+
+
+def run_reference_seconds(model: "CostModel", run_dir: Path) -> tuple[float, float] | None:
+    """(measured, predicted at reference_scale 1 without the start) seconds of a cold run's
+    references: the manifest's `references` phase, and `model`'s samples for every static view the
+    run judged, from none stored (bench.run.budget.reference_seconds, cold). None for a run
+    without references."""
+    from bench.protocol import results as store
+    from bench.protocol.vocabulary import REFERENCE_COMPONENTS
+    try:
+        manifest = json.loads((Path(run_dir) / "manifest.json").read_text())
+        args, actual = manifest["arguments"], float(manifest["phases_s"]["references"])
+        df = store.load_results(Path(run_dir))
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+    if not args.get("references") or actual <= 0 or not len(df):
+        return None
+    static = df[df["status"].astype(str).isin(["ok", "cached"])]
+    if "sequence" in static:
+        static = static[static["sequence"].isna() | (static["sequence"].astype(str) == "")]
+    cap = int(args.get("reference_spp_cap") or 1024)
+    first = min(cap, REFERENCE_FIRST_PASS_SPP)
+    predicted = 0.0
+    for (scene, _view, width, height), _ in static.groupby(["scene", "view", "width", "height"]):
+        predicted += sum(model.reference_seconds(scene, c, float(width) * float(height), cap, 0, first)
+                         for c in REFERENCE_COMPONENTS) / (model.reference_scale or 1.0)
+    return (actual, predicted) if predicted > 0 else None
 
 
 # ---------------------------------------------------------------------------- local data

@@ -394,6 +394,9 @@ class Runner:
         opening = (job.scene, job.view) not in self._opened_views
         if opening:   # the first pass now, the refinement at the end
             row_s += view.get("references", 0.0) - view.get("references_refinement", 0.0)
+            if view.get("references", 0.0) > 0 and not any(self.plan.views.get(v, {}).get("references", 0.0) > 0
+                                                           for v in self._opened_views):
+                row_s += self.plan.reference_start_s   # Mitsuba starts with the first reference
         judged = [r for r in self.rows if Status.has_images(r.get("status"))]
         finish_s = self.plan.finish_seconds(self._opened_views | ({(job.scene, job.view)} if opening else set()),
                                             len(judged) + 1)
