@@ -36,7 +36,7 @@ for name in sys.argv[1].split(","):
         print(f"  gate {g:3d} {a:3d}-{b:3d} ratio {ratio:5.2f} r {gr[g]:.2f} rmax {crad[a]:.2f}/{crad[b]:.2f} nodes {sizes[a]}/{sizes[b]} visible {vf:.2f}")
     for frac in (0.75, 0.5, 0.25, 0.0):
         row = []
-        for mv in (0.0, 0.7, 0.8, 0.9, 0.95, 1.0):
+        for mv in (0.0, 0.3, 0.5, 0.7, 0.8, 0.9, 1.0):
             _, n = merge_wide_gates(count, crad, gr, gp, frac, empty, coords, of_node, mv)
             row.append(f"{mv}:{n}")
         print(f"  fraction {frac}: clusters by min_visible " + " ".join(row))
