@@ -254,16 +254,54 @@ def paper_gate_radii(seg_edges: np.ndarray, seg_cluster: dict, radius: np.ndarra
     return arr[:, 0], arr[:, 1:].astype(np.int64)
 
 
+MERGE_SAMPLES = 32   # skeleton nodes per cluster whose mutual segments test a merge's quasi-convexity
+
+
+def _sample_nodes(nodes: np.ndarray, k: int = MERGE_SAMPLES) -> np.ndarray:
+    """At most k of the nodes, evenly spaced in their order (deterministic)."""
+    if len(nodes) <= k:
+        return nodes
+    return nodes[np.linspace(0, len(nodes) - 1, k).round().astype(np.int64)]
+
+
+def visible_fraction(space: np.ndarray, a: np.ndarray, b: np.ndarray) -> float:
+    """Of the straight segments between voxel centres a (Na, 3) and b (Nb, 3), the fraction that
+    stays inside `space` (sampled at a quarter voxel; skeleton.py's `_segment_in_space`)."""
+    a, b = np.asarray(a, float), np.asarray(b, float)
+    if len(a) == 0 or len(b) == 0:
+        return 1.0
+    d = b[None, :, :] - a[:, None, :]                                   # (Na, Nb, 3)
+    steps = max(int(np.ceil(4.0 * np.abs(d).max())), 1)
+    t = np.linspace(0.0, 1.0, steps + 1)
+    v = np.floor(a[:, None, None, :] + t[None, None, :, None] * d[:, :, None, :] + 0.5).astype(np.int64)
+    v = np.clip(v, 0, np.asarray(space.shape) - 1)
+    inside = space[v[..., 0], v[..., 1], v[..., 2]].all(axis=2)
+    return float(inside.mean())
+
+
 def merge_wide_gates(count: int, cluster_radius: np.ndarray, gate_radius: np.ndarray, gate_pairs: np.ndarray,
-                     fraction: float) -> tuple[np.ndarray, int]:
+                     fraction: float, space: np.ndarray | None = None, node_coords: np.ndarray | None = None,
+                     node_cluster: np.ndarray | None = None, min_visible: float = 0.0) -> tuple[np.ndarray, int]:
     """Merge two clusters joined by a gate at least `fraction` as wide as the smaller cluster's
     largest maximal ball: such a gate is no narrowing of the empty space (a door is narrow beside
     a room, the gap beside a block is not beside itself), only a break in the voxel skeleton's
     radii, and light crossing it is barely occluded. Widest gate (relative) first, one at a
-    time, the ratios re-evaluated with the merged clusters' largest balls. Returns (new label of
-    each old cluster, in order of first appearance; new count)."""
+    time, the ratios re-evaluated with the merged clusters' largest balls.
+
+    With `min_visible` > 0 (and `space`, the empty voxels, `node_coords`, the skeleton nodes'
+    voxel coordinates, `node_cluster`, each node's cluster) a merge must also keep the merged
+    cluster a visibility cluster in the paper's sense (IV.B: "the union of the maximal balls ...
+    is quasi-convex"): of the straight segments between the two clusters' skeleton nodes
+    (MERGE_SAMPLES of each), at least `min_visible` must stay in the empty space; a pair that
+    fails stays apart (re-tested when either side grows by another merge).
+    Returns (new label of each old cluster, in order of first appearance; new count)."""
     parent = np.arange(count)
     r_max = np.asarray(cluster_radius, float).copy()
+    test = min_visible > 0.0 and space is not None and node_coords is not None and node_cluster is not None
+    if test:
+        node_coords, node_cluster = np.asarray(node_coords), np.asarray(node_cluster)
+        members = {c: np.flatnonzero(node_cluster == c) for c in range(count)}
+    rejected = set()
 
     def root(c):
         while parent[c] != c:
@@ -271,21 +309,33 @@ def merge_wide_gates(count: int, cluster_radius: np.ndarray, gate_radius: np.nda
         return c
 
     while True:
-        best, best_ratio = None, -1.0
+        candidates = []
         for g, (a, b) in enumerate(gate_pairs):
             ra, rb = root(int(a)), root(int(b))
-            if ra == rb:
+            if ra == rb or (min(ra, rb), max(ra, rb)) in rejected:
                 continue
             ratio = gate_radius[g] / min(r_max[ra], r_max[rb])
-            if ratio >= fraction and ratio > best_ratio:
-                best, best_ratio = (ra, rb), ratio
+            if ratio >= fraction:
+                candidates.append((ratio, min(ra, rb), max(ra, rb)))
+        best = None
+        for ratio, ra, rb in sorted(candidates, key=lambda c: -c[0]):
+            if (ra, rb) in rejected:
+                continue
+            if test and visible_fraction(space, node_coords[_sample_nodes(members[ra])],
+                                         node_coords[_sample_nodes(members[rb])]) < min_visible:
+                rejected.add((ra, rb))
+                continue
+            best = (ra, rb)
+            break
         if best is None:
             break
-        keep, gone = min(best), max(best)
+        keep, gone = best
         parent[gone] = keep
         r_max[keep] = max(r_max[keep], r_max[gone])
+        if test:
+            members[keep] = np.sort(np.concatenate([members[keep], members.pop(gone)]))
+            rejected = {pair for pair in rejected if keep not in pair}
     roots = np.array([root(c) for c in range(count)])
     _, first, inverse = np.unique(roots, return_index=True, return_inverse=True)
     order = np.argsort(np.argsort(first))  # relabel in order of first appearance
     return order[inverse].astype(np.int64), len(first)
-

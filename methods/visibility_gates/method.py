@@ -77,7 +77,13 @@ Paper formula corrections and readings (checked against the invariant each must 
   re-evaluated after each merge. Such a gate is no narrowing of the space, only a break in the
   voxel skeleton's radii (a corner of a room, the space beside a block; a door's own cluster
   beside its room), and light crossing it is barely occluded; a door between rooms (gate a
-  third of the rooms' balls) stays a gate.
+  third of the rooms' balls) stays a gate. With `merge_visible_fraction` > 0 (default 0: no
+  test) a merge must also keep the paper's own definition of a visibility cluster (IV.B: "the
+  union of the maximal balls centered in these nodes is quasi-convex"): at least that fraction
+  of the straight segments between the two clusters' skeleton nodes (32 of each, evenly spaced)
+  must stay in the voxelised empty space, else the two stay apart, joined by their gate
+  (re-tested when either grows by another merge). A nave beside its aisles behind a row of
+  pillars, or two arms of an L, fail it; a door's own cluster beside its room passes.
 - Gate shape and place (the paper's own improvement, VI.B: "use polygon instead of disks to
   better match the shape of separation between clusters"; its disk, at the middle of the
   segmented edge, sits half a room before a door with the door's half-width as radius): the gate
@@ -151,19 +157,20 @@ changes the untimed precomputation only, and at 32 closes rooms' second door).
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
-| parameter           | default   | range                          | meaning |
-|---------------------|-----------|--------------------------------|---|
-| vpl_count           | 1024      | 1 .. 65536                     | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 64, 256, 1024, 4096) |
-| voxel_resolution    | 64        | 16 .. 256                      | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
-| alpha_percent       | 20.0      | 0.0 .. 1000.0                  | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
-| merge_gate_fraction | 0.75      | 0.0 .. 2.0                     | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
-| gate_radius_scale   | 1.0       | 0.0 .. 8.0                     | gate size multiplier (1: the polygon of the opening, or the maximal-ball disk in open space; 0: no light crosses gates) |
-| gate_hops           | 4         | 1 .. 16                        | gates a VPL's light may cross on its way to a pixel (1: into a neighbouring cluster only, paper Fig. 11) |
-| use_gates           | true      | bool                           | false: indirect light stays inside visibility clusters (paper VI.B) |
-| depth_slices        | 16        | 1 .. 256                       | clustered-shading depth slices, exponential in view depth |
-| clamp_distance_rel  | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
-| near_field          | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
-| near_field_scale    | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
+| parameter              | default   | range                          | meaning |
+|------------------------|-----------|--------------------------------|---|
+| vpl_count              | 1024      | 1 .. 65536                     | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 64, 256, 1024, 4096) |
+| voxel_resolution       | 64        | 16 .. 256                      | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
+| alpha_percent          | 20.0      | 0.0 .. 1000.0                  | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
+| merge_gate_fraction    | 0.75      | 0.0 .. 2.0                     | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
+| merge_visible_fraction | 0.0       | 0.0 .. 1.0                     | a merge also needs this fraction of the straight segments between the two clusters' skeleton nodes inside the empty space (the merged cluster stays quasi-convex; 0: no test) |
+| gate_radius_scale      | 1.0       | 0.0 .. 8.0                     | gate size multiplier (1: the polygon of the opening, or the maximal-ball disk in open space; 0: no light crosses gates) |
+| gate_hops              | 4         | 1 .. 16                        | gates a VPL's light may cross on its way to a pixel (1: into a neighbouring cluster only, paper Fig. 11) |
+| use_gates              | true      | bool                           | false: indirect light stays inside visibility clusters (paper VI.B) |
+| depth_slices           | 16        | 1 .. 256                       | clustered-shading depth slices, exponential in view depth |
+| clamp_distance_rel     | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| near_field             | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
+| near_field_scale       | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
 <!-- end of parameters -->
 
 Example: `gibench run --scenes rooms --methods visibility_gates,ir_shadowed --res 128x96 --param
@@ -223,18 +230,20 @@ def topology_seeds(scene) -> np.ndarray:
     return np.array(points, float).reshape(-1, 3)
 
 
-def topology_key(scene, resolution: int, alpha_percent: float, merge_fraction: float) -> tuple:
-    return (scene.content_hash(), int(resolution), float(alpha_percent), float(merge_fraction))
+def topology_key(scene, resolution: int, alpha_percent: float, merge_fraction: float,
+                 merge_visible: float = 0.0) -> tuple:
+    return (scene.content_hash(), int(resolution), float(alpha_percent), float(merge_fraction), float(merge_visible))
 
 
-def scene_topology(scene, resolution: int, alpha_percent: float, merge_fraction: float) -> tuple[Topology, bool]:
+def scene_topology(scene, resolution: int, alpha_percent: float, merge_fraction: float,
+                   merge_visible: float = 0.0) -> tuple[Topology, bool]:
     """The scene's topology (built, or from the small in-process cache) and whether it was cached."""
-    key = topology_key(scene, resolution, alpha_percent, merge_fraction)
+    key = topology_key(scene, resolution, alpha_percent, merge_fraction, merge_visible)
     if key in _TOPOLOGY_CACHE:
         _TOPOLOGY_CACHE.move_to_end(key)
         return _TOPOLOGY_CACHE[key], True
     topo = build_topology(scene.vertices, scene.faces, resolution, alpha_percent, merge_fraction,
-                          topology_seeds(scene), scene.name)
+                          topology_seeds(scene), scene.name, merge_visible)
     _TOPOLOGY_CACHE[key] = topo
     while len(_TOPOLOGY_CACHE) > _CACHE_SIZE:
         _TOPOLOGY_CACHE.popitem(last=False)
@@ -274,6 +283,9 @@ class VisibilityGates(MethodBase):
                                      "is within alpha % of the cluster's largest", 0.0, 1000.0),
         "merge_gate_fraction": Param(0.75, "clusters joined by a gate at least this fraction as wide as the smaller "
                                           "cluster's largest maximal ball are merged (above 1: never)", 0.0, 2.0),
+        "merge_visible_fraction": Param(0.0, "a merge also needs this fraction of the straight segments between "
+                                             "the two clusters' skeleton nodes inside the empty space (the merged "
+                                             "cluster stays quasi-convex; 0: no test)", 0.0, 1.0),
         "gate_radius_scale": Param(1.0, "gate size multiplier (1: the polygon of the opening, or the maximal-ball "
                                         "disk in open space; 0: no light crosses gates)", 0.0, 8.0),
         "gate_hops": Param(4, "gates a VPL's light may cross on its way to a pixel (1: into a neighbouring "
@@ -299,7 +311,7 @@ class VisibilityGates(MethodBase):
         empty space it describes, builds it again inside the frame (its cost is the frame's)."""
         if "geometry" not in changes and np.all(self.topology.cluster_of(topology_seeds(scene)) >= 0):
             key = topology_key(scene, params["voxel_resolution"], params["alpha_percent"],
-                               params["merge_gate_fraction"])
+                               params["merge_gate_fraction"], params["merge_visible_fraction"])
             _TOPOLOGY_CACHE[key] = self.topology
         super().update(gpu, scene, facts, params, view, changes)
 
@@ -308,7 +320,7 @@ class VisibilityGates(MethodBase):
         t0 = time.perf_counter()
         try:
             topo, cached = scene_topology(scene, params["voxel_resolution"], params["alpha_percent"],
-                                          params["merge_gate_fraction"])
+                                          params["merge_gate_fraction"], params["merge_visible_fraction"])
         except TopologyError as exc:
             raise SkipRow(str(exc)) from None
         if topo.cluster_count >= 1 << CLUSTER_BITS:

@@ -171,7 +171,8 @@ def cluster_grid(empty: np.ndarray, skel_coords: np.ndarray, node_cluster: np.nd
 
 # ----------------------------------------------------------------------------- all steps
 def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alpha_percent: float,
-                   merge_fraction: float, seeds=(), scene_name: str = "scene") -> Topology:
+                   merge_fraction: float, seeds=(), scene_name: str = "scene",
+                   merge_visible: float = 0.0) -> Topology:
     vertices, faces = np.asarray(vertices, float), np.asarray(faces)
     timings = {}
     t = time.perf_counter()
@@ -201,7 +202,9 @@ def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alp
     for node, c in label.items():
         cluster_radius[c] = max(cluster_radius[c], radius[node])
     paper_r, paper_pairs = paper_gate_radii(seg_edges, label, radius)
-    relabel, count = merge_wide_gates(count, cluster_radius, paper_r, paper_pairs, merge_fraction)
+    greedy_of_node = np.array([label[int(association[i])] for i in range(len(coords))], np.int64)
+    relabel, count = merge_wide_gates(count, cluster_radius, paper_r, paper_pairs, merge_fraction,
+                                      empty, coords, greedy_of_node, merge_visible)
     label = {node: int(relabel[c]) for node, c in label.items()}
     gates = gates_between(seg_edges, edge_lines, label, pos, radius, surface, OCCUPIED_DISTANCE * pitch)
     node_cluster = np.array([label[int(association[i])] for i in range(len(coords))], np.int32)

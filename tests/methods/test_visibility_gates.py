@@ -447,3 +447,23 @@ def test_parameter_tables_match_the_params():
                 assert float(default) == p.default, (name, rows[name])
                 low, high = (float(x) for x in span.split(".."))
                 assert (low, high) == (p.low, p.high), (name, rows[name])
+
+
+def test_wide_gate_merge_keeps_the_union_quasi_convex():
+    """merge_visible_fraction: two clusters joined by a wide gate are merged when the segments
+    between their skeleton nodes stay in the empty space (a straight corridor cut by a break in
+    the radii), not when the union bends round a corner (an L: its arms see little of each other)."""
+    space = np.zeros((30, 30, 5), bool)
+    space[:10, :, :] = True      # arm along y
+    space[:, :10, :] = True      # arm along x
+    straight = np.array([[5, y, 2] for y in range(12, 30)])
+    corner = np.array([[x, 5, 2] for x in range(12, 30)])
+    coords = np.concatenate([straight[:9], straight[9:], corner])
+    node_cluster = np.repeat([0, 1, 2], [9, 9, 18])
+    radius = np.array([2.0, 2.0, 2.0])
+    pairs = np.array([[0, 1], [0, 2]])
+    gate_r = np.array([1.8, 1.8])
+    label, count = merge_wide_gates(3, radius, gate_r, pairs, 0.75)
+    assert count == 1
+    label, count = merge_wide_gates(3, radius, gate_r, pairs, 0.75, space, coords, node_cluster, 0.9)
+    assert count == 2 and label[0] == label[1] != label[2]
