@@ -77,8 +77,8 @@ Paper formula corrections and readings (checked against the invariant each must 
   re-evaluated after each merge. Such a gate is no narrowing of the space, only a break in the
   voxel skeleton's radii (a corner of a room, the space beside a block; a door's own cluster
   beside its room), and light crossing it is barely occluded; a door between rooms (gate a
-  third of the rooms' balls) stays a gate. With `merge_visible_fraction` > 0 (default 0: no
-  test) a merge must also keep the paper's own definition of a visibility cluster (IV.B: "the
+  third of the rooms' balls) stays a gate. With `merge_visible_fraction` > 0 (default 0.5; 0:
+  no test) a merge must also keep the paper's own definition of a visibility cluster (IV.B: "the
   union of the maximal balls centered in these nodes is quasi-convex"): at least that fraction
   of the straight segments between the two clusters' skeleton nodes (32 of each, evenly spaced)
   must stay in the voxelised empty space, else the two stay apart, joined by their gate
@@ -163,7 +163,7 @@ Parameters:
 | voxel_resolution       | 64        | 16 .. 256                      | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
 | alpha_percent          | 20.0      | 0.0 .. 1000.0                  | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
 | merge_gate_fraction    | 0.75      | 0.0 .. 2.0                     | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
-| merge_visible_fraction | 0.0       | 0.0 .. 1.0                     | a merge also needs this fraction of the straight segments between the two clusters' skeleton nodes inside the empty space (the merged cluster stays quasi-convex; 0: no test) |
+| merge_visible_fraction | 0.5       | 0.0 .. 1.0                     | a merge also needs this fraction of the straight segments between the two clusters' skeleton nodes inside the empty space (the merged cluster stays quasi-convex; 0: no test) |
 | gate_radius_scale      | 1.0       | 0.0 .. 8.0                     | gate size multiplier (1: the polygon of the opening, or the maximal-ball disk in open space; 0: no light crosses gates) |
 | gate_hops              | 4         | 1 .. 16                        | gates a VPL's light may cross on its way to a pixel (1: into a neighbouring cluster only, paper Fig. 11) |
 | use_gates              | true      | bool                           | false: indirect light stays inside visibility clusters (paper VI.B) |
@@ -283,7 +283,7 @@ class VisibilityGates(MethodBase):
                                      "is within alpha % of the cluster's largest", 0.0, 1000.0),
         "merge_gate_fraction": Param(0.75, "clusters joined by a gate at least this fraction as wide as the smaller "
                                           "cluster's largest maximal ball are merged (above 1: never)", 0.0, 2.0),
-        "merge_visible_fraction": Param(0.0, "a merge also needs this fraction of the straight segments between "
+        "merge_visible_fraction": Param(0.5, "a merge also needs this fraction of the straight segments between "
                                              "the two clusters' skeleton nodes inside the empty space (the merged "
                                              "cluster stays quasi-convex; 0: no test)", 0.0, 1.0),
         "gate_radius_scale": Param(1.0, "gate size multiplier (1: the polygon of the opening, or the maximal-ball "
