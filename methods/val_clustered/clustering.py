@@ -49,7 +49,7 @@ class ValClustering:
     (VALs M .. M + S - 1 of the same buffers)."""
 
     def __init__(self, gpu, vpl_count: int, cluster_count: int, weights: tuple, spare_count: int = 0,
-                 origin_medoid: bool = False, split_reassign: bool = True):
+                 origin_medoid: bool = False, split_reassign: bool = True, size_scale: float = 1.0):
         ctx = self.ctx = gpu.ctx
         self.gpu, self.vpl_count = gpu, int(vpl_count)
         self.main_count, self.spare_count = int(cluster_count), int(spare_count)
@@ -83,7 +83,8 @@ class ValClustering:
                            u_weight_position=float(weights[0]), u_weight_angle=float(weights[1]),
                            u_inv_scene_radius=1.0 / gpu.radius, u_val_lift=LIFT_SCALE * gpu.radius,
                            u_box_min=tuple(float(v) for v in box_min), u_box_max=tuple(float(v) for v in box_max),
-                           u_val_first=0, u_val_end=self.main_count, u_orphans_only=0)
+                           u_val_first=0, u_val_end=self.main_count, u_orphans_only=0,
+                           u_size_scale=float(size_scale))
 
     def bind(self) -> None:
         self.vals.bind_to_storage_buffer(VAL_DEFINES["BINDING_VALS"])

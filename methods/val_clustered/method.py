@@ -89,6 +89,12 @@ sibenik, cornell_box by 6-12%; rooms/far 9.8 -> 2.5) and the procedural scenes k
 sponza and lost_empire stay above no indirect at all and rooms/far darkens to 0.48 of the
 reference: CSSM's soft visibility of 30 large VALs is the remaining leak (with `visibility=hard`
 the same setting reads sponza 0.58-0.66, lost_empire 0.29-0.37, at 0.65-0.95 of the mean).
+- `val_size_scale` < 1 (with `fourier_terms=8`): lambda a fraction of the side of the VPLs'
+  bounding rectangle (the paper's area), i.e. smaller CSSM kernels; a fitted factor, not a
+  derivation. The best setting found, A + `fourier_terms=8 val_size_scale=0.25
+  csm_sharpening=4`, brings every real scene but sponza (0.78 against 0.71: its interleaved
+  sampling's noise) and both rooms views below no indirect, means in [0.85, 1.15] but sponza
+  (0.82) and rooms/far (0.62), procedural scenes within 2% (NOTES.md).
 
 Limits: with `cluster_count` = `vpl_count`, `visibility=hard` and `interleave` = 1 every VAL is
 one VPL with a hard shadow and the method is `ir_shadowed` up to the shadow-map
@@ -162,6 +168,7 @@ Parameters:
 | csm_sharpening     | 3.0        | 2.0 .. 16.0                    | slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) (2: Annen et al.'s plain scaling) |
 | split_clusters     | 0          | 0 .. 256                       | spare VALs S for the split round: the VPLs their VAL's map origin does not see are clustered again into up to S more VALs with maps of their own (0: the paper's clustering alone) |
 | split_mode         | reassign   | reassign, recluster            | a VPL its VAL's origin does not see: to the nearest VAL whose origin sees it, else to the split round (reassign), or straight to the split round (recluster) |
+| val_size_scale     | 1.0        | 0.01 .. 4.0                    | VAL size lambda as a fraction of the side of the square of its VPLs' bounding rectangle's area (the paper's: 1) |
 | val_origin         | centre     | medoid, centre                 | origin of a VAL's map: the cluster's mean position (centre, the paper's) or its VPL nearest that mean (medoid) |
 | behind_plane       | visible    | horizon, visible               | visibility of a receiver behind a VAL's plane, outside its map: the paper's full visibility (visible) or the map's horizon in its direction (horizon) |
 | near_ignore        | 0.5        | 0.0 .. 4.0                     | ignore geometry closer to a VAL centre than this times the VAL size |
@@ -251,6 +258,8 @@ class ClusteredVirtualAreaLights(MethodBase):
         "split_mode": Param("reassign", "a VPL its VAL's origin does not see: to the nearest VAL whose origin "
                                         "sees it, else to the split round (reassign), or straight to the split "
                                         "round (recluster)", choices=("reassign", "recluster")),
+        "val_size_scale": Param(1.0, "VAL size lambda as a fraction of the side of the square of its VPLs' "
+                                     "bounding rectangle's area (the paper's: 1)", 0.01, 4.0),
         "val_origin": Param("centre", "origin of a VAL's map: the cluster's mean position (centre, the paper's) "
                                       "or its VPL nearest that mean (medoid)", choices=("medoid", "centre")),
         "behind_plane": Param("visible", "visibility of a receiver behind a VAL's plane, outside its map: the "
@@ -312,7 +321,8 @@ class ClusteredVirtualAreaLights(MethodBase):
         self.clustering = ValClustering(gpu, n, m, (params["weight_position"], params["weight_angle"]),
                                         spare_count=spare,
                                         origin_medoid=params["val_origin"] == "medoid",
-                                        split_reassign=params["split_mode"] == "reassign")
+                                        split_reassign=params["split_mode"] == "reassign",
+                                        size_scale=params["val_size_scale"])
         m = self.clustering.cluster_count   # VALs and maps in all, the spare ones included
         self.maps = ParaboloidShadowMaps(gpu, self.clustering, res, cssm, groups, params["near_ignore"])
         defines = dict(self.maps.defines, VISIBILITY_CSSM=int(cssm), BEHIND_HORIZON=int(params["behind_plane"] == "horizon"),

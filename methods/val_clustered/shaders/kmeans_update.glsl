@@ -13,6 +13,7 @@ uniform sampler2D u_bounds;        // max s, max t, -min s, -min t
 uniform vec3 u_box_min;
 uniform vec3 u_box_max;
 uniform int u_vpl_count;
+uniform float u_size_scale;        // VAL size lambda / sqrt(bounding rectangle area)
 
 void main() {
     int j = u_val_first + int(gl_GlobalInvocationID.x);
@@ -22,7 +23,7 @@ void main() {
     if (vals[j].position.w > 0.0) {
         vec4 bnd = texelFetch(u_bounds, ivec2(j, 0), 0);
         vec2 extent = max(bnd.xy + bnd.zw, vec2(0.0));
-        vals[j].normal.w = sqrt(extent.x * extent.y);
+        vals[j].normal.w = u_size_scale * sqrt(extent.x * extent.y);
     } else {
         vals[j].normal.w = 0.0;
     }
