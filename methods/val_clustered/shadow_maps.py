@@ -103,12 +103,16 @@ class ParaboloidShadowMaps:
     def textures(self) -> list:
         return self.basis_full + self.basis_half
 
-    def render(self) -> None:
+    def render(self, first: int = 0, end: int | None = None, finish: bool = True) -> None:
+        """The maps of VALs [first, end) (the atlas is cleared when first = 0); `finish`: then the
+        far distances and basis atlases of every VAL."""
         ctx = self.ctx
+        end = self.clustering.cluster_count if end is None else end
         self.fbo.use()
         ctx.viewport = (0, 0, self.atlas.width, self.atlas.height)
         ctx.scissor = None
-        self.fbo.clear(MAP_EMPTY, 0.0, 0.0, 0.0)
+        if first == 0:
+            self.fbo.clear(MAP_EMPTY, 0.0, 0.0, 0.0)
         ctx.enable_only(moderngl.BLEND)
         ctx.blend_equation = moderngl.MIN
         for i in range(5):
@@ -120,18 +124,18 @@ class ParaboloidShadowMaps:
         self.pairs.bind_to_storage_buffer(VAL_DEFINES["BINDING_MAP_PAIRS"])
         self.commands.bind_to_storage_buffer(VAL_DEFINES["BINDING_MAP_COMMANDS"])
         self.splat.bind_to_image(0, read=True, write=True, level=0, format=GL_R32UI)
-        m = self.clustering.cluster_count
         for prog in (self.split_pass, self.program, self.tess_program):
             set_uniforms(prog, **self.clustering.common)
+            set_uniforms(prog, u_val_first=first, u_val_end=end)
             set_uniforms(prog, u_tiles_x=self.tiles_x, u_tiles_y=self.tiles_y, u_near_ignore=self.near_ignore,
                          u_resolution=self.resolution, u_near_min=NEAR_SCALE * gpu.radius,
                          u_pair_capacity=self.pair_capacity)
         ctx.patch_vertices = 3
-        for first, end in loop_chunks(gpu.triangle_count, self.chunk_triangles):
+        for start, stop in loop_chunks(gpu.triangle_count, self.chunk_triangles):
             ctx.copy_buffer(self.commands, self.commands_reset)
             for prog in (self.split_pass, self.program, self.tess_program):
-                set_uniforms(prog, u_first_triangle=first, u_chunk_triangles=end - first)
-            self.split_pass.run(group_x=(end - first + MAP_GROUP - 1) // MAP_GROUP, group_y=m)
+                set_uniforms(prog, u_first_triangle=start, u_chunk_triangles=stop - start)
+            self.split_pass.run(group_x=(stop - start + MAP_GROUP - 1) // MAP_GROUP, group_y=end - first)
             ctx.memory_barrier()
             self.vao.render_indirect(self.commands, mode=moderngl.TRIANGLES, count=1, first=0)
             self.tess_vao.render_indirect(self.commands, mode=moderngl.PATCHES, count=1, first=1)
@@ -142,7 +146,7 @@ class ParaboloidShadowMaps:
         ctx.memory_barrier()
         ctx.blend_equation = moderngl.FUNC_ADD
         ctx.disable(moderngl.BLEND)
-        if self.cssm:
+        if self.cssm and finish:
             ctx.memory_barrier()
             self.atlas.use(0)
             set_uniforms(self.far_pass, **self.clustering.common)

@@ -13,6 +13,8 @@ from methods.val_clustered.shadow_maps import NEAR_SCALE
 from tests.conftest import make_grid_box
 from tests.methods.test_val_clustered import first_hits, orthonormal_basis
 
+NEAR_IGNORE = ClusteredVirtualAreaLights.params["near_ignore"].default
+
 W, H = 64, 48
 
 
@@ -28,17 +30,19 @@ def map_frame(ctx, scene, params):
         maps = method.maps
         query = ctx.query(primitives=True)
         render_maps = maps.render
+        primitives = []
 
-        def counted():
+        def counted(*args, **kwargs):   # the paper's VALs, then the split round's
             with query:
-                render_maps()
+                render_maps(*args, **kwargs)
+            primitives.append(query.primitives)
         maps.render = counted
         prof = StageProfiler(ctx)
         passes.render(prof)
         method.render(Frame(ctx=ctx, gpu=gpu, view=view, passes=passes, index=0, seed=0), prof)
         ctx.finish()
         atlas = np.frombuffer(maps.atlas.read(), np.float32).reshape(maps.atlas.height, maps.atlas.width)
-        return {"vals": method.clustering.read(), "atlas": atlas.copy(), "primitives": query.primitives,
+        return {"vals": method.clustering.read(), "atlas": atlas.copy(), "primitives": sum(primitives),
                 "tiles_x": maps.tiles_x, "resolution": maps.resolution, "lift": LIFT_SCALE * gpu.radius,
                 "near_min": NEAR_SCALE * gpu.radius, "triangles": gpu.positions[gpu.faces].astype(np.float64)}
     finally:
@@ -70,8 +74,8 @@ def test_small_pairs_skip_the_rasteriser_and_maps_match_ray_cast(gl_ctx):
         n = vals["normal"][j].astype(np.float64)
         t, b = orthonormal_basis(n)
         dirs = local[:, :1] * t + local[:, 1:2] * b + local[:, 2:] * n
-        origin = vals["position"][j].astype(np.float64) + n * r["lift"]
-        ignore = max(r["near_min"], 0.5 * float(vals["size"][j]))   # default near_ignore = 0.5
+        origin = vals["origin"][j].astype(np.float64)
+        ignore = max(r["near_min"], NEAR_IGNORE * float(vals["size"][j]))   # the default near_ignore
         expected = first_hits(origin, dirs, r["triangles"], ignore)
         ty, tx = divmod(j, r["tiles_x"])
         got = atlas[ty * res:(ty + 1) * res, tx * res:(tx + 1) * res][inside].astype(np.float64)

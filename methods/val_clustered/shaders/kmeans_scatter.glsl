@@ -6,6 +6,7 @@
 //    the bounding rectangle (s, t, -s, -t) of the VPLs projected onto the VAL's plane.
 #include "val_records.glsl"
 
+uniform int u_orphans_only;
 #if defined VERTEX_SHADER
 flat out vec4 v_out0;
 flat out vec4 v_out1;
@@ -15,8 +16,9 @@ void main() {
     Vpl v = vpls[k];
     int c = nearest_val(v.position.xyz, v.normal.xyz);
     bool live = v.flux.rgb != vec3(0.0);  // a VPL of flux 0 (unlit Halton texel) joins no cluster
+    if (u_orphans_only != 0 && vpl_cluster[k] >= 0) live = false;  // split round: the orphans only
 #if ASSIGN_PASS
-    vpl_cluster[k] = c;
+    if (u_orphans_only == 0 || live) vpl_cluster[k] = c;
     if (live) atomicAdd(val_vpl_count[c], 1u);
     vec3 t, b;
     orthonormal_basis(vals[c].normal.xyz, t, b);

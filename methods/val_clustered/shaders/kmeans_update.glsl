@@ -12,20 +12,36 @@ uniform sampler2D u_sum_flux;
 uniform sampler2D u_bounds;        // max s, max t, -min s, -min t
 uniform vec3 u_box_min;
 uniform vec3 u_box_max;
+uniform int u_vpl_count;
+uniform float u_size_scale;        // VAL size lambda / sqrt(bounding rectangle area)
 
 void main() {
-    int j = int(gl_GlobalInvocationID.x);
-    if (j >= u_cluster_count) return;
+    int j = u_val_first + int(gl_GlobalInvocationID.x);
+    if (j >= u_val_end) return;
 #if FINALIZE
     vals[j].position.w = float(val_vpl_count[j]);
     if (vals[j].position.w > 0.0) {
         vec4 bnd = texelFetch(u_bounds, ivec2(j, 0), 0);
         vec2 extent = max(bnd.xy + bnd.zw, vec2(0.0));
-        vals[j].normal.w = sqrt(extent.x * extent.y);
+        vals[j].normal.w = u_size_scale * sqrt(extent.x * extent.y);
     } else {
         vals[j].normal.w = 0.0;
     }
-    vec3 o = val_origin(vals[j]);
+    vec3 o = vals[j].position.xyz + vals[j].normal.xyz * u_val_lift;
+#if ORIGIN_MEDOID
+    // the map's origin on a lit surface: the VPL of the cluster nearest its centre (the centre
+    // itself may lie inside geometry or across a wall), lifted along its own normal
+    float best = 3.0e38;
+    for (int k = 0; k < u_vpl_count && vals[j].position.w > 0.0; ++k) {
+        if (vpl_cluster[k] != j || vpls[k].flux.rgb == vec3(0.0)) continue;
+        vec3 r = vpls[k].position.xyz - vals[j].position.xyz;
+        if (dot(r, r) < best) {
+            best = dot(r, r);
+            o = vpls[k].position.xyz + vpls[k].normal.xyz * u_val_lift;
+        }
+    }
+#endif
+    vals[j].origin = vec4(o, 0.0);
     vec3 far_corner = max(abs(u_box_min - o), abs(u_box_max - o));
     vals[j].flux.w = length(far_corner) * 1.001 + 1e-6;
 #else

@@ -33,7 +33,7 @@ float edge_side(vec2 a, vec2 b, vec2 p) { return (b.x - a.x) * (p.y - a.y) - (b.
 
 void main() {
     uint local_triangle = gl_GlobalInvocationID.x;
-    int j = int(gl_WorkGroupID.y);
+    int j = u_val_first + int(gl_WorkGroupID.y);
     Val c = vals[j];
     if (local_triangle >= u_chunk_triangles || c.position.w <= 0.0) return;
     uint triangle = u_first_triangle + local_triangle;

@@ -88,18 +88,30 @@ float val_visibility(int j, vec3 x, vec3 n_geo) {
     vec3 wi = to_val / dist;
     float cos0;
     paraboloid_uv(c, -to_val, cos0);
+#if BEHIND_HORIZON == 0
     if (cos0 <= 0.0) return 1.0;
+#endif
     // texel footprint at x: 2 / res uv units, (1 + cos theta) radians per uv unit
-    float texel = dist * 2.0 * (1.0 + cos0) / float(u_resolution);
+    float texel = dist * 2.0 * (1.0 + max(cos0, 0.0)) / float(u_resolution);
     vec3 n = dot(n_geo, wi) < 0.0 ? -n_geo : n_geo;
     float cos_r = clamp(dot(n, wi), 0.0, 1.0);
     float sin_r = sqrt(max(1.0 - cos_r * cos_r, 0.0));
     vec3 q = x + n * (u_normal_offset * texel * (0.5 + 1.5 * sin_r));
     vec3 rel = q - o;
+    float d_world = length(rel);
     float cos_theta;
     vec2 uv = paraboloid_uv(c, rel, cos_theta);
-    if (cos_theta <= 0.0) return 1.0;
-    float d_world = length(rel);
+    if (cos_theta <= 0.0) {
+#if BEHIND_HORIZON
+        // behind the VAL's plane (no map there): the map's horizon in the receiver's azimuth
+        // holds the receiver's distance or not (see the manual); straight below: visible
+        vec3 h = rel - c.normal.xyz * dot(rel, c.normal.xyz);
+        if (dot(h, h) <= 1e-12 * d_world * d_world) return 1.0;
+        uv = paraboloid_uv(c, h + c.normal.xyz * (1e-3 * length(h)), cos_theta);
+#else
+        return 1.0;
+#endif
+    }
 #if VISIBILITY_CSSM
     float far = c.flux.w;
     float d = min(d_world / far, 1.0);
