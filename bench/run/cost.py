@@ -346,8 +346,9 @@ class CostModel:
         setups = [h for h in history if _num(h.get("setup_s")) and _num(h.get("triangles")) is not None]
         speed = {"gl": 1.0, "cpu": 1.0}
         if probe is not None and (not everyone or not metrics or len(setups) < 2):
+            from bench.run.probe import speed_ratios
             here = probe()
-            speed = self.at_speed(lambda: here).provenance["speed"]
+            speed = speed_ratios(here, self.provenance.get("probe"))
             model.provenance["probe_here"] = here
         overall = statistics.median(everyone) if everyone else speed["gl"]
         model.scale = {m: (statistics.median(rs) if len(rs) >= MIN_LOCAL_ROWS else overall) for m, rs in ratios.items()}

@@ -88,8 +88,8 @@ def machine_key(ctx) -> str:
 def stored_machine_probe(ctx) -> dict:
     """This machine's probe, measured once and kept in the cache (`<cache>/cost/machine_probe.json`,
     keyed by machine_key): every later plan on the machine scales the prior by the same figures, so a
-    budget keeps the same rows run after run (bench.run.budget.make_plan), as a per-run measurement,
-    5% noisy, would not at the budget's edge."""
+    budget keeps the same rows run after run (bench.run.budget.make_plan), as a per-run measurement
+    would not at the budget's edge (a shared host's probe read 0.022-0.040 s within an hour)."""
     from bench.run.config import cache_root
     path, key = cache_root() / "cost" / "machine_probe.json", machine_key(ctx)
     try:
