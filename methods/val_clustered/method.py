@@ -59,18 +59,26 @@ clustering.py, stage 3 shadow_maps.py):
 6. `blur`: geometry-aware blur over the block (alpha = 10% of the scene extent, beta = 0.8,
    Laine et al. 2007); skipped when `interleave` = 1.
 
-On large real scenes the paper's operating point (30 VALs, CSSM) lets light through: a VAL's
-visibility is its centre's, its soft-shadow kernel grows with the VAL's size, and geometry within
-`near_ignore` x the size is ignored, so big clusters miss occluders. At the defaults the image
-mean is 1.10 of the visible bounce on sponza and 1.32 on lost_empire (relMSE 1.07 and 2.37,
-above no indirect at all), 0.95-1.09 on cornell_box, holodeck, sibenik and conference (relMSE
-0.03-0.29); more VALs, hard visibility or a smaller ignore radius narrow it (NOTES.md).
+Defaults (issue #23): the paper's operating point (30 VALs of 1024 VPLs, parabolic CSSM) with
+four readings recorded below: the map origin at the cluster's medoid VPL with nothing ignored
+(`val_origin=medoid`, `near_ignore=0`), the CSSM kernel matched to a box of the paper's width
+(`cssm_kernel=box`), 8 Fourier terms, and the interleaved-sampling block scaled to the image
+width (`interleave=0`: 3 x 3 at 320 x 180). The paper's own setting, which lets light through
+walls on large scenes (a VAL's visibility is its mean's, geometry within 0.5 lambda of it is
+ignored, its soft-shadow kernel is wider than the paper's and the 4-term step ramps over metres):
+`val_origin=centre near_ignore=0.5 cssm_kernel=lod fourier_terms=4 interleave=8`. At 320 x 180,
+1 frame, seed 0, relMSE of `indirect` against the visible one-bounce reference (image mean /
+reference), paper setting -> defaults: sponza 1.13 (1.10) -> 0.61 (0.92), lost_empire 2.39
+(1.32) -> 0.30 (0.90), sibenik 0.29 -> 0.21, conference 0.25 -> 0.13, cornell_box 0.031 ->
+0.023, holodeck 0.19 -> 0.14 (means 0.95-1.05); every one below no indirect at all, every
+procedural scene better (rooms/far 10.2 -> 0.89, at 0.80 of the reference's mean). What is
+left: the error does not fall steadily along the ladder (lost_empire 1.18, 1.67, 0.30, 0.54;
+sponza 1.72, 0.80, 0.61, 0.85): lost_empire's VALs are 7-36 m wide, their CSSM kernels (from
+the VAL's size) far wider than the 1 m blocks around a receiver, and how much leaks where
+depends on which cluster a receiver's nearest VPLs fall in; one hard test per VAL falls
+steadily (lost_empire 0.20 at 20 VALs, 0.13 at 60). Figures and commands: NOTES.md.
 
-Opt-in corrections of issue #23 (default off, the paper's setting; measurements in NOTES.md):
-- `val_origin=medoid`: the map's origin is the cluster's VPL nearest its mean (lifted along that
-  VPL's normal), not the mean itself. The mean may lie inside geometry or at a wall between two
-  rooms (paper Fig. 7), which is why the paper ignores geometry near it (`near_ignore`) and
-  loses real occluders; a medoid lies on a lit surface, so `near_ignore=0` is safe with it.
+Opt-in corrections of issue #23 (default off; measurements in NOTES.md):
 - `split_clusters=S` > 0: after the maps of the M VALs are drawn, each VPL is tested against
   its VAL's map (val_visibility's hard test, the VPL standing in for the receiver; facing away
   from the origin or behind its plane counts as hidden). `split_mode=reassign`: a hidden VPL
@@ -82,24 +90,16 @@ Opt-in corrections of issue #23 (default off, the paper's setting; measurements 
   number of orphans) in the frame.
 - `behind_plane=horizon`: a receiver behind a VAL's plane (outside its hemispherical map) reads
   the map's horizon texel in its azimuth at its own distance instead of being fully visible
-  (paper Sec. 5.1: "full visibility must be assumed here").
-With all four (`val_origin=medoid near_ignore=0 split_clusters=15 behind_plane=horizon`) the
-relMSE of the real scenes falls (sponza 1.28 -> 0.94, lost_empire 2.41 -> 1.66, conference,
-sibenik, cornell_box by 6-12%; rooms/far 9.8 -> 2.5) and the procedural scenes keep theirs, but
-sponza and lost_empire stay above no indirect at all and rooms/far darkens to 0.48 of the
-reference: CSSM's soft visibility of 30 large VALs is the remaining leak (with `visibility=hard`
-the same setting reads sponza 0.58-0.66, lost_empire 0.29-0.37, at 0.65-0.95 of the mean).
-- `val_size_scale` < 1 (with `fourier_terms=8`): lambda a fraction of the side of the VPLs'
-  bounding rectangle (the paper's area), i.e. smaller CSSM kernels; a fitted factor, not a
-  derivation. The best setting found, A + `fourier_terms=8 val_size_scale=0.25
-  csm_sharpening=4`, brings every real scene but sponza (0.78 against 0.71: its interleaved
-  sampling's noise) and both rooms views below no indirect, means in [0.85, 1.15] but sponza
-  (0.82) and rooms/far (0.62), procedural scenes within 2% (NOTES.md).
+  (paper Sec. 5.1: "full visibility must be assumed here"). On top of the defaults: sponza
+  0.61 -> 0.40 but at 0.76 of the reference's mean (outside issue #23's band), rooms unchanged.
+- `val_size_scale` < 1: lambda a fraction of the side of the VPLs' bounding rectangle (the
+  paper's area), i.e. smaller CSSM kernels; a fitted factor, not a derivation.
 
 Limits: with `cluster_count` = `vpl_count`, `visibility=hard` and `interleave` = 1 every VAL is
 one VPL with a hard shadow and the method is `ir_shadowed` up to the shadow-map
 parameterisation (paraboloid vs hemicube). Receivers behind a VAL's plane are taken as visible
-(paper Sec. 5.1); geometry within `near_ignore` x lambda of a VAL centre is ignored.
+(paper Sec. 5.1); geometry within `near_ignore` x lambda of a VAL's map origin is ignored (none
+at the default 0).
 
 Corrections and choices relative to the paper's text (recorded here as the house rule asks):
 - Clustering distance: the paper's d = w_x dx + w_a da adds metres to radians, so the weights
@@ -118,12 +118,38 @@ Corrections and choices relative to the paper's text (recorded here as the house
   ramps over 7.6% of the depth range and its ringing lets up to 11% through an umbra (what that
   gave on `rooms`: NOTES.md). The default test is the scaled and biased reconstruction
   V = clamp(1 + s (F - 1/2), 0, 1) with s = `csm_sharpening` = 3 (s = 2 is Annen's): still 1
-  at F = 1/2, 0 from F = 1/6, which removes the ringing and narrows the ramp to 4.5% of the
+  at F = 1/2, 0 from F = 1/6, which removes the ringing and narrows the 4-term ramp to 4.5% of the
   range; the price is a darker penumbra (V = 1 - 1.5 b where a fraction b of the kernel is
   blocked by a distant occluder, instead of 1 - b). The blocker search uses the unscaled f.
 - Depth normalisation: z = distance / far_j with far_j the largest distance drawn in VAL j's
   map (a reduction pass), not the scene's extent: the step's width is a fixed fraction of
   the range, so a tight range sharpens it in metres.
+- Map origin (default `val_origin=medoid`, `near_ignore=0`): the paper places the area light at
+  the cluster's centre, the mean of its VPLs, and since that may lie inside geometry (Fig. 7)
+  ignores the geometry near it, which "can result in the loss of some existing shadows". The
+  map's origin here is the cluster's VPL nearest that mean, lifted along its own normal as the
+  centre is: a point on a lit surface, so nothing needs ignoring. The VAL's plane, normal and
+  size stay the paper's. (On `rooms` a cluster's mean lay 1 cm from the wall between two rooms
+  and its 1.4 m ignore radius let room 1's light through that wall.) `val_origin=centre` with
+  `near_ignore=0.5` is the paper's.
+- CSSM kernel (`cssm_kernel=box`): the paper's kernel w is a box alpha wide (alpha / pi of the
+  texture). A trilinear lookup at MIP level L is the level's texel, a box 2^L base texels wide,
+  convolved with the bilinear tent of half-width 2^L: variance 2^2L / 12 + 2^2L / 6 = 2^2L / 4,
+  that of a box sqrt(3) 2^L wide. So a kernel of w texels is read at L = log2(w / sqrt(3)),
+  whose variance is the box's (blocker search and filter alike); `lod` (L = log2 w, a kernel
+  sqrt(3) times the paper's) is the former lookup.
+- Fourier terms: 8 by default (paper: "4 term, 8 bit"). The CSM step ramps over a fixed share
+  of each map's depth range (with s = 3: 4.5% for 4 terms, 2.2% for 8), tens of centimetres to
+  metres on rooms and lost_empire, so a 4-term step lets light along wall junctions and under
+  lost_empire's 1 m blocks (the contact-shadow weakness the paper names, Sec. 7.1). 8 terms
+  double the basis atlases and their MIP maps.
+- Interleaved sampling block (default `interleave=0`): the paper's "blocks of 8 x 8 = 64
+  pixels" serve 800 x 800 images; the block is also the geometry-aware blur's window, an
+  image-space footprint. At 320 x 180 an 8 x 8 block spans 2.5 times the paper's share of the
+  image width, and where the blur rejects most of it (sponza's columns and arches) a pixel keeps
+  its own 1/64 of the VPLs, weighted 64: bright blocks in dark regions. The default scales the
+  block with the image width, B = max(1, round(8 width / 800)): 3 x 3 at 320 x 180 (114 VPLs
+  per pixel), 1 (no interleaving, no blur) below 150 pixels.
 - Map resolution: the paper's 256^2 maps serve 800 x 800 images (3 map texels per pixel for
   M = 30) and take 8% of its frame, the per-pixel gather 69%. At the benchmark's 128 x 96 the
   per-pixel stages are 50x cheaper while the maps are not, so the default is 128^2 (still 40
@@ -164,16 +190,17 @@ Parameters:
 | weight_angle       | 0.3        | 0.0 .. 10.0                    | w_a: clustering weight of the normal angle (per radian) |
 | visibility         | cssm       | cssm, hard                     | per-VAL visibility: soft (parabolic CSSM) or one hard shadow test |
 | shadow_resolution  | 128        | 16 .. 1024                     | paraboloid shadow map resolution per VAL (texels, a power of two; paper: 256) (quality knob; sweep 64, 128, 256) |
-| fourier_terms      | 4          | 4, 8                           | Fourier terms of the convolution shadow maps (paper: 4) |
+| fourier_terms      | 8          | 4, 8                           | Fourier terms of the convolution shadow maps (paper: 4) |
 | csm_sharpening     | 3.0        | 2.0 .. 16.0                    | slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) (2: Annen et al.'s plain scaling) |
 | split_clusters     | 0          | 0 .. 256                       | spare VALs S for the split round: the VPLs their VAL's map origin does not see are clustered again into up to S more VALs with maps of their own (0: the paper's clustering alone) |
 | split_mode         | reassign   | reassign, recluster            | a VPL its VAL's origin does not see: to the nearest VAL whose origin sees it, else to the split round (reassign), or straight to the split round (recluster) |
 | val_size_scale     | 1.0        | 0.01 .. 4.0                    | VAL size lambda as a fraction of the side of the square of its VPLs' bounding rectangle's area (the paper's: 1) |
-| val_origin         | centre     | medoid, centre                 | origin of a VAL's map: the cluster's mean position (centre, the paper's) or its VPL nearest that mean (medoid) |
+| cssm_kernel        | box        | box, lod                       | CSSM kernel of width w texels as a trilinear MIP lookup: at level log2(w / sqrt(3)), whose variance is the box's (box), or at log2(w) (lod) |
+| val_origin         | medoid     | medoid, centre                 | origin of a VAL's map: the cluster's mean position (centre, the paper's) or its VPL nearest that mean (medoid) |
 | behind_plane       | visible    | horizon, visible               | visibility of a receiver behind a VAL's plane, outside its map: the paper's full visibility (visible) or the map's horizon in its direction (horizon) |
-| near_ignore        | 0.5        | 0.0 .. 4.0                     | ignore geometry closer to a VAL centre than this times the VAL size |
+| near_ignore        | 0.0        | 0.0 .. 4.0                     | ignore geometry closer to a VAL's map origin than this times the VAL size (paper: 0.5, with the origin at the cluster's centre) |
 | normal_offset      | 0.5        | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VAL shadow test, in map texel footprints at the receiver |
-| interleave         | 8          | 1 .. 16                        | interleaved sampling block size B (B x B pixels share the VPLs; 1: off, no blur; paper: 8) |
+| interleave         | 0          | 0 .. 16                        | interleaved sampling block size B (B x B pixels share the VPLs; 1: off, no blur; 0: the paper's 8 x 8 blocks of an 800-pixel-wide image scaled to the image width, max(1, round(8 width / 800))) |
 | blur_distance_rel  | 0.1        | 0.0 .. 10.0                    | geometry-aware blur alpha: max position difference / scene extent (2R) |
 | blur_normal_dot    | 0.8        | -1.0 .. 1.0                    | geometry-aware blur beta: min dot product of the normals |
 | clamp_distance_rel | 0.0001     | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
@@ -227,6 +254,14 @@ BLOCKER_MIN = 0.02                   # filtered blocker fraction below which a r
 MAX_BASIS_BYTES = 1 << 30
 MAX_VALS = 256                       # VALs in all, spare ones included (shadow_maps.PAIR_TRIANGLE_BITS)
 GL_R32F = 0x822E
+PAPER_BLOCK, PAPER_WIDTH = 8, 800          # interleaved sampling: 8 x 8 blocks at 800 x 800 (paper Sec. 6)
+KERNEL_SCALES = {"box": 1.0 / math.sqrt(3.0), "lod": 1.0}
+
+
+def interleave_block(interleave: int, width: int) -> int:
+    """The interleaved-sampling block size B: `interleave`, or for 0 the paper's 8 x 8 blocks of an
+    800-pixel-wide image scaled to `width` (rounded half up, at least 1)."""
+    return interleave or max(1, int(PAPER_BLOCK * width / PAPER_WIDTH + 0.5))
 
 
 class ClusteredVirtualAreaLights(MethodBase):
@@ -249,7 +284,7 @@ class ClusteredVirtualAreaLights(MethodBase):
                             choices=("cssm", "hard")),
         "shadow_resolution": Param(128, "paraboloid shadow map resolution per VAL (texels, a power of two; "
                                         "paper: 256)", 16, 1024, quality=True, sweep=(64, 128, 256)),
-        "fourier_terms": Param(4, "Fourier terms of the convolution shadow maps (paper: 4)", choices=(4, 8)),
+        "fourier_terms": Param(8, "Fourier terms of the convolution shadow maps (paper: 4)", choices=(4, 8)),
         "csm_sharpening": Param(3.0, "slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) "
                                      "(2: Annen et al.'s plain scaling)", 2.0, 16.0),
         "split_clusters": Param(0, "spare VALs S for the split round: the VPLs their VAL's map origin does not "
@@ -260,16 +295,21 @@ class ClusteredVirtualAreaLights(MethodBase):
                                         "round (recluster)", choices=("reassign", "recluster")),
         "val_size_scale": Param(1.0, "VAL size lambda as a fraction of the side of the square of its VPLs' "
                                      "bounding rectangle's area (the paper's: 1)", 0.01, 4.0),
-        "val_origin": Param("centre", "origin of a VAL's map: the cluster's mean position (centre, the paper's) "
+        "cssm_kernel": Param("box", "CSSM kernel of width w texels as a trilinear MIP lookup: at level log2(w / "
+                                    "sqrt(3)), whose variance is the box's (box), or at log2(w) (lod)",
+                             choices=("box", "lod")),
+        "val_origin": Param("medoid", "origin of a VAL's map: the cluster's mean position (centre, the paper's) "
                                       "or its VPL nearest that mean (medoid)", choices=("medoid", "centre")),
         "behind_plane": Param("visible", "visibility of a receiver behind a VAL's plane, outside its map: the "
                                          "paper's full visibility (visible) or the map's horizon in its direction (horizon)",
                               choices=("horizon", "visible")),
-        "near_ignore": Param(0.5, "ignore geometry closer to a VAL centre than this times the VAL size", 0.0, 4.0),
+        "near_ignore": Param(0.0, "ignore geometry closer to a VAL's map origin than this times the VAL size "
+                                  "(paper: 0.5, with the origin at the cluster's centre)", 0.0, 4.0),
         "normal_offset": Param(0.5, "receiver offset along its geometric normal for the VAL shadow test, "
                                     "in map texel footprints at the receiver", 0.0, 16.0),
-        "interleave": Param(8, "interleaved sampling block size B (B x B pixels share the VPLs; 1: off, no "
-                               "blur; paper: 8)", 1, 16),
+        "interleave": Param(0, "interleaved sampling block size B (B x B pixels share the VPLs; 1: off, no "
+                               "blur; 0: the paper's 8 x 8 blocks of an 800-pixel-wide image scaled to the "
+                               "image width, max(1, round(8 width / 800)))", 0, 16),
         "blur_distance_rel": Param(0.1, "geometry-aware blur alpha: max position difference / scene extent "
                                         "(2R)", 0.0, 10.0),
         "blur_normal_dot": Param(0.8, "geometry-aware blur beta: min dot product of the normals", -1.0, 1.0),
@@ -314,6 +354,7 @@ class ClusteredVirtualAreaLights(MethodBase):
                              f"{visibility_bytes / 2**30:.1f} GiB of per-pixel VAL visibility, over "
                              f"{MAX_BASIS_BYTES / 2**30:.0f} GiB")
         self.width, self.height = view.width, view.height
+        self.interleave = interleave_block(params["interleave"], view.width)
         self.eps = params["clamp_distance_rel"] * gpu.radius
         self.radius = gpu.radius
         sampler_cls = HaltonVplSampler if params["vpl_sampling"] == "halton" else RsmVplSampler
@@ -343,7 +384,7 @@ class ClusteredVirtualAreaLights(MethodBase):
 
     def render(self, frame, prof) -> FrameOutput:
         ctx, passes, p = self.ctx, frame.passes, self.params
-        interleave = p["interleave"]
+        interleave = self.interleave
         with prof.stage("vpl_sample"):
             # one VPL pattern for every frame of a seed (the paper's fixed QMC sequence), so that
             # a static scene keeps its VPLs and VALs; frame 0's equals ir_shadowed's
@@ -371,7 +412,8 @@ class ClusteredVirtualAreaLights(MethodBase):
             unit = passes.gbuffer.bind(prog)
             self.maps.bind(prog, unit)
             set_uniforms(prog, u_normal_offset=float(p["normal_offset"]), u_size=(self.width, self.height),
-                         u_blocker_min=BLOCKER_MIN, u_csm_sharpening=float(p["csm_sharpening"]))
+                         u_blocker_min=BLOCKER_MIN, u_csm_sharpening=float(p["csm_sharpening"]),
+                         u_kernel_scale=KERNEL_SCALES[p["cssm_kernel"]])
             self.visibility.bind_to_image(5, read=False, write=True, level=0, format=GL_R32F)
             prog.run(group_x=(self.width + 7) // 8, group_y=(self.height + 7) // 8)
             ctx.memory_barrier()

@@ -72,8 +72,10 @@ vec2 csm_filtered_z(vec2 at, float lod, float d) {
     return vec2(0.5 * z + 2.0 * zf, z);
 }
 
+uniform float u_kernel_scale;  // MIP footprint per kernel width: 1 / sqrt(3) matches a box's variance (manual)
+
 float kernel_lod(float angle, float texture_per_radian) {
-    float texels = angle * texture_per_radian * float(u_resolution);
+    float texels = angle * texture_per_radian * float(u_resolution) * u_kernel_scale;
     return min(log2(max(texels, 1.0)), float(MAX_LOD));
 }
 #endif
