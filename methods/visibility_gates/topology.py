@@ -16,6 +16,8 @@
    empty voxel, so a surface point looked up one voxel off its surface along its normal finds
    its room; in the voxels a gate's plane cuts (the gate's and its wall's) the side of the
    plane decides.
+7. gates.py, `border_gates` (opt-in, the method's `border_gates`): every patch of the
+   clusters' borders in that grid which no gate of step 5 covers gets gates of its own.
 """
 from __future__ import annotations
 
@@ -26,7 +28,7 @@ import numpy as np
 from scipy import ndimage
 from skimage.segmentation import watershed
 
-from .gates import GateSet, gates_between, merge_wide_gates, paper_gate_radii
+from .gates import GateSet, border_gates, gates_between, merge_wide_gates, paper_gate_radii
 from .skeleton import KIND_UNCLASSIFIED, cluster, prune_spurs, segment, skeleton_graph
 from .voxels import OCCUPIED_DISTANCE, voxelize
 
@@ -172,7 +174,7 @@ def cluster_grid(empty: np.ndarray, skel_coords: np.ndarray, node_cluster: np.nd
 # ----------------------------------------------------------------------------- all steps
 def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alpha_percent: float,
                    merge_fraction: float, seeds=(), scene_name: str = "scene",
-                   merge_visible: float = 0.0) -> Topology:
+                   merge_visible: float = 0.0, cover_borders: bool = False) -> Topology:
     vertices, faces = np.asarray(vertices, float), np.asarray(faces)
     timings = {}
     t = time.perf_counter()
@@ -212,6 +214,8 @@ def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alp
     t = time.perf_counter()
     barrier, sided = gate_barrier(empty, origin, pitch, gates)
     grid = cluster_grid(empty, coords, node_cluster, barrier, sided, gates, origin, pitch)
+    if cover_borders:
+        gates = border_gates(grid, empty, origin, pitch, gates)
     timings["cluster_grid"] = time.perf_counter() - t
     return Topology(origin=origin, pitch=pitch, dims=tuple(int(x) for x in empty.shape), cluster_grid=grid,
                     node_position=pos, node_radius=radius, node_kind=kind, node_segment=association,

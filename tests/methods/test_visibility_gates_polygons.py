@@ -130,3 +130,41 @@ def test_a_word_of_vpls_split_over_draws_sums_the_same(gl_ctx, rooms):
     whole = run_method(gl_ctx, VisibilityGates, rooms, "far", 64, 48, dict(params, gate_hops=4), seed=4, frames=1)
     assert whole.indirect.max() > 0
     np.testing.assert_allclose(split.indirect, whole.indirect, rtol=1e-5, atol=1e-6 * whole.indirect.max())
+
+
+def _square_gate_set(centre, half, pairs):
+    """GateSet of axis-aligned squares in planes x = const (normal +x), `half` their half-side."""
+    from methods.visibility_gates.gates import MAX_GATE_EDGES, GateSet
+    g = len(centre)
+    hp = np.zeros((g, MAX_GATE_EDGES, 3))
+    hp[:, :4] = [(1, 0, half), (-1, 0, half), (0, 1, half), (0, -1, half)]
+    return GateSet(centre=np.asarray(centre, float), normal=np.tile([1.0, 0, 0], (g, 1)),
+                   axis_u=np.tile([0, 1.0, 0], (g, 1)), halfplanes=hp, count=np.full(g, 4),
+                   radius=np.full(g, half * np.sqrt(2)), area=np.full(g, 4 * half * half),
+                   pairs=np.asarray(pairs, np.int64), sides=np.asarray(pairs, np.int64))
+
+
+def test_border_gates_cover_the_openings_no_skeleton_gate_covers():
+    """Two clusters meet through two holes in a wall (a row of arches); the skeleton's gate is
+    one hole's. The light through the other hole needs a gate of its own (border_gates), in the
+    wall's plane over that hole, and none is added when the gates cover both holes."""
+    from methods.visibility_gates.gates import border_gates
+    empty = np.ones((12, 10, 8), bool)
+    empty[6] = False
+    empty[6, 1:3, 2:6] = True   # hole 1: y 1..2, z 2..5
+    empty[6, 6:9, 2:6] = True   # hole 2: y 6..8
+    grid = np.where(np.arange(12)[:, None, None] < 6, 0, 1) * np.ones((1, 10, 8), np.int32)
+    origin, pitch = np.zeros(3), 1.0
+    one = _square_gate_set([(6.0, 2.0, 4.0)], 2.0, [(0, 1)])
+    out = border_gates(grid, empty, origin, pitch, one)
+    assert len(out.radius) == 2 and tuple(out.pairs[1]) == (0, 1) and tuple(out.sides[1]) == (0, 1)
+    assert abs(abs(out.normal[1] @ [1.0, 0, 0]) - 1) < 1e-9 and abs(out.centre[1, 0] - 6.0) < 1e-9
+    # a segment through hole 2 crosses the new gate's polygon, one through the wall beside it does not
+    c, u, v = out.centre[1], out.axis_u[1], out.axis_v[1]
+    hp = out.halfplanes[1, :out.count[1]]
+    inside = lambda p: bool(np.all(hp[:, :2] @ [(p - c) @ u, (p - c) @ v] <= hp[:, 2] + 1e-9))
+    assert inside(np.array([6.0, 7.5, 4.0])) and not inside(np.array([6.0, 4.5, 4.0]))
+    assert abs(out.area[1] / (3 * 4) - 1) < 1e-6  # the hole's 3 x 4 voxel faces
+    both = _square_gate_set([(6.0, 2.0, 4.0), (6.0, 7.5, 4.0)], 2.0, [(0, 1), (0, 1)])
+    assert len(border_gates(grid, empty, origin, pitch, both).radius) == 2
+
