@@ -43,7 +43,8 @@ brightest surfel's at one scene radius R. `threshold` 0 cuts nothing; the thresh
 so that it does not depend on the scene's units, light power or surfel density. Then each level
 is unshuffled and blurred over (2 blur_radius + 1)^2 same-surface neighbours (normal and
 tangent-plane tests), the coarse levels are upsampled with geometry-aware bilinear weights and
-summed, and the receiver's rho/pi is applied: L(x) = rho_x / pi sum_levels E_l(x).
+summed (a pixel with no grid receiver of its surface near: rule (4)), and the receiver's rho/pi is
+applied: L(x) = rho_x / pi sum_levels E_l(x).
 
 Level l's receiver of level pixel X is the full-resolution pixel X 2^l (the last node of a row
 or column on the screen's last pixel), and the upsampling puts X's bilinear node exactly there:
@@ -62,6 +63,33 @@ radius, quantised to 2^-20 (`triangle_keys`; float64 in prepare, stored in the t
 record's normal.w). The key does not depend on the triangle's index, winding, the scene's unit
 or position, so the sampling pattern follows the geometry: re-triangulating part of a scene
 changes the surfels of the split triangles only, not the pattern of the whole scene.
+(4) Thin faces (issue #23). A pixel takes a coarse level l from the level's grid receivers on
+its own surface (normal and tangent-plane tests): the four bilinear nodes, else the 3 x 3 around
+the nearest. A face one or two pixels wide (the side of a column, a moulding, a block's step
+seen edge-on) has none at level 2 (grid receivers every 4 pixels) and often none at level 1.
+Such pixels get receivers of their own: each level l >= 1 has a second slot of the same layout,
+whose receiver of level pixel X is the first pixel (row by row) of X's 2^l x 2^l block that has
+no grid receiver of its surface (the same test as the upsampling's; none if every pixel has
+one). Every surfel's quad of level l is drawn over both slots (same box, same interleaved
+class), the slot is blurred like the level, and such a pixel takes the thin-face receiver of its
+own block if on its surface, else those of its surface in the 3 x 3 around it: the refinement
+at discontinuities of multi-resolution splatting (Nichols and Wyman 2009), the fine sampling
+where the coarse one has no sample of the surface. Where that fails too (two thin surfaces in
+one block), the mean of the level's grid receivers of its orientation (the normal test alone)
+closer than half the level's inner shell radius, 2^(l-1) S footprints, searched within S/2 level
+pixels (`orient_radius`, at most 8): the level holds the unshadowed light of surfels at least
+2^l S footprints away, which changes with the receiver's orientation at once but with its
+position only over the shell's radius; with none, the level adds nothing there. The first
+version took plain bilinear weights over the covered grid nodes there, i.e. another surface's
+irradiance: on sponza 4% of the pixels took it, held 78% of the relMSE (2-3x too bright where
+the reference is dark) and made the ladder rise (relMSE 0.458, 0.553, 0.466, while the plain
+sum, levels 1 without interleaving or blur, falls 0.095, 0.081, 0.075: the surfel count only
+changed which wrong values those pixels drew). Cost: every surfel draws a second quad per level >= 1 (llvmpipe pays per
+primitive): sponza's frame at 320x180 655 -> 870 ms, sibenik's 904 -> 1139 ms (NOTES.md); a
+depth mask of the slots' receivers (1 where a receiver is) lets the splat's early depth test
+drop empty slot pixels before shading (10% of the splat). Figures: NOTES.md, "Thin faces". The
+paper's text is not in the project's papers folder: the thin-face slots are our reading of its
+multi-resolution splatting's refinement, not a quoted step.
 
 With threshold 0, levels 1 and interleave 1 (and blur_radius 0) this is the exact sum over the
 surfels, which converges to the continuous one-bounce integral (and to jittered `manylights`,
@@ -136,6 +164,14 @@ TRIANGLES_PER_LEVEL_SQ = 1.5      # GL's triangle tessellation with all levels n
 SURFEL_BYTES = 80                 # std430 Surfel (dss_common.glsl)
 COUNTER_INIT = np.array([0, 1, 0, 0, 0, 0], dtype=np.uint32)  # count, instances, first, base, pad, max lum
 KEY_CELL_BITS = 20                # triangle keys: centroids quantised to 2^-20 scene radii
+MAX_ORIENT_RADIUS = 8             # compose: same-orientation search window at most 17 x 17 level pixels
+
+
+def orient_radius(shell_pixels: float) -> int:
+    """Level pixels the compose pass searches for receivers of a pixel's orientation when none of
+    its surface is near: half the level's inner shell radius (2^l S footprints = S level pixels),
+    at least 1, at most MAX_ORIENT_RADIUS."""
+    return int(min(MAX_ORIENT_RADIUS, max(1, shell_pixels // 2)))
 
 
 def sub_triangle_edge(target_area: float) -> float:
@@ -189,17 +225,21 @@ def patch_records(split: np.ndarray) -> np.ndarray:
 
 
 def level_layout(width: int, height: int, levels: int, interleave: int) -> tuple[np.ndarray, np.ndarray, tuple]:
-    """Per level (W_l, H_l, tile width, tile height) and atlas row offsets, and the atlas size."""
-    sizes = np.zeros((levels, 4), dtype=np.int32)
-    rows = np.zeros(levels, dtype=np.int32)
+    """Per slot (W_l, H_l, tile width, tile height) and atlas row offsets, and the atlas size. Slots
+    0 .. levels - 1 are the levels' grid receivers; slot levels - 1 + l (l >= 1) holds level l's
+    thin-face receivers (rule (4)), laid out as level l."""
+    slots = 2 * levels - 1
+    sizes = np.zeros((slots, 4), dtype=np.int32)
+    rows = np.zeros(slots, dtype=np.int32)
     y = 0
-    for lvl in range(levels):
+    for slot in range(slots):
+        lvl = slot if slot < levels else slot - levels + 1
         # level pixel X's receiver is full-resolution pixel min(X 2^l, size - 1): one more node
         # than ceil(size / 2^l) when needed, so that the last pixels lie between two nodes
         w, h = -(-(width - 1) // 2 ** lvl) + 1, -(-(height - 1) // 2 ** lvl) + 1
         tw, th = -(-w // interleave), -(-h // interleave)
-        sizes[lvl] = (w, h, tw, th)
-        rows[lvl] = y
+        sizes[slot] = (w, h, tw, th)
+        rows[slot] = y
         y += interleave * th
     return sizes, rows, (int(interleave * sizes[0, 2]), int(y))
 
@@ -256,7 +296,7 @@ class DeepScreenSpace(MethodBase):
         patches = patch_records(split_factors(tri, target_area))
         self.patch_count = len(patches)
 
-        defines = dict(DSS_DEFINES, LEVELS=levels, INTERLEAVE=interleave, MAX_TESS_LEVEL=MAX_TESS_LEVEL,
+        defines = dict(DSS_DEFINES, LEVELS=levels, SLOTS=2 * levels - 1, INTERLEAVE=interleave, MAX_TESS_LEVEL=MAX_TESS_LEVEL,
                        TRIANGLES_PER_LEVEL_SQ=TRIANGLES_PER_LEVEL_SQ, IRRADIANCE_SPLITS=params["irradiance_splits"])
         self.triangles = ctx.buffer(records.tobytes())
         self.patches = ctx.buffer(patches.tobytes())
@@ -264,7 +304,8 @@ class DeepScreenSpace(MethodBase):
         self.generate = load_program(ctx, SHADERS / "surfels.glsl", dict(defines, COUNT_ONLY=False))
         self.generate_vao = ctx.vertex_array(self.generate, [])
         sizes, rows, atlas = level_layout(view.width, view.height, levels, interleave)
-        self.level_sizes, self.level_rows, self.atlas_size = sizes, rows, atlas
+        # the grid receivers' slots (the levels); the thin-face slots follow them in the atlas
+        self.level_sizes, self.level_rows, self.atlas_size = sizes[:levels], rows[:levels], atlas
 
         # Receivers of every level (deinterleaved), splat accumulation, blurred levels, output.
         self.receiver_position = ctx.texture(atlas, 4, dtype="f4")
@@ -274,8 +315,12 @@ class DeepScreenSpace(MethodBase):
         self.indirect = ctx.texture((view.width, view.height), 4, dtype="f4")
         for t in (self.receiver_position, self.receiver_normal, self.splat_tex, self.levels_tex, self.indirect):
             t.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.receiver_fbo = ctx.framebuffer([self.receiver_position, self.receiver_normal])
-        self.splat_fbo = ctx.framebuffer([self.splat_tex])
+        # depth 1 where a slot pixel has a receiver, 0 elsewhere (deinterleave.glsl): the splat's
+        # early depth test drops the fragments of empty slot pixels before shading
+        self.receiver_mask = ctx.depth_texture(atlas)
+        self.receiver_fbo = ctx.framebuffer([self.receiver_position, self.receiver_normal], self.receiver_mask)
+        self.splat_fbo = ctx.framebuffer([self.splat_tex], self.receiver_mask)
+        self.splat_fbo.depth_mask = False
         self.levels_fbo = ctx.framebuffer([self.levels_tex])
         self.indirect_fbo = ctx.framebuffer([self.indirect])
 
@@ -314,6 +359,7 @@ class DeepScreenSpace(MethodBase):
                      u_radius_max=float(2.0 * gpu.radius * 1.01), u_threshold=params["threshold"],
                      u_eps=float(params["eps_rel"] * gpu.radius), u_capacity=self.surfel_count)
         set_uniforms(self.unshuffle, u_blur_radius=params["blur_radius"])
+        set_uniforms(self.compose, u_orient_radius=orient_radius(params["shell_pixels"]))
 
     def _run_generation(self, program, vao, target_area: float, capacity: int) -> None:
         ctx = self.ctx
@@ -341,12 +387,15 @@ class DeepScreenSpace(MethodBase):
         with prof.stage("deinterleave"):
             self.receiver_fbo.use()
             ctx.viewport = atlas_viewport
+            ctx.enable(moderngl.DEPTH_TEST)
+            ctx.depth_func = "1"   # always: every atlas pixel writes its receiver mask
             passes.gbuffer.bind(self.deinterleave)
             self.deinterleave_vao.render(moderngl.TRIANGLES, vertices=3)
         with prof.stage("splat"):
             self.splat_fbo.use()
             ctx.viewport = atlas_viewport
-            self.splat_fbo.clear(0.0, 0.0, 0.0, 0.0)
+            self.splat_fbo.clear(0.0, 0.0, 0.0, 0.0)   # colour only: the fbo's depth mask is off
+            ctx.depth_func = "<"   # quads at depth 0.5 pass where the mask is 1
             ctx.enable(moderngl.BLEND)
             ctx.blend_func = moderngl.ONE, moderngl.ONE
             self.receiver_position.use(0)
@@ -355,7 +404,7 @@ class DeepScreenSpace(MethodBase):
             self.surfels.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_SURFELS"])
             self.counter.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_COUNTER"])
             self.splat_vao.render_indirect(self.counter, mode=moderngl.POINTS, count=1)
-            ctx.disable(moderngl.BLEND)
+            ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
         with prof.stage("unshuffle_blur"):
             self.levels_fbo.use()
             ctx.viewport = atlas_viewport
@@ -381,7 +430,7 @@ class DeepScreenSpace(MethodBase):
         if getattr(self, "ctx", None) is None:  # prepare() stopped before allocating anything
             return
         park(self.ctx)
-        for name in ("receiver_fbo", "splat_fbo", "levels_fbo", "indirect_fbo", "receiver_position",
+        for name in ("receiver_fbo", "splat_fbo", "levels_fbo", "indirect_fbo", "receiver_mask", "receiver_position",
                      "receiver_normal", "splat_tex", "levels_tex", "indirect", "generate_vao", "deinterleave_vao",
                      "splat_vao", "unshuffle_vao", "compose_vao", "generate", "deinterleave", "splat", "unshuffle",
                      "compose", "surfels", "counter", "patches", "triangles"):

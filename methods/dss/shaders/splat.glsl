@@ -1,5 +1,6 @@
 // Splatting (Deep Screen Space, Sec. 4): every lit surfel is drawn as one screen-aligned quad
-// per level into one interleaved sub-buffer of that level (picked by hashing its key with the
+// per level (and one more over the level's thin-face receivers, l >= 1) into one interleaved
+// sub-buffer of that level (picked by hashing its key with the
 // frame's random value, weight INTERLEAVE^2 so the expectation is the full sum). Each
 // receiver takes the surfel at exactly one level (shell_level), and only within the cut
 // radius r where the surfel's contribution per unit area falls under the threshold. The
@@ -31,7 +32,7 @@ void main() { v_index = gl_VertexID; }
 
 #if defined GEOMETRY_SHADER
 layout(points) in;
-layout(triangle_strip, max_vertices = 4 * LEVELS) out;
+layout(triangle_strip, max_vertices = 4 * SLOTS) out;
 flat in int v_index[];
 flat out vec4 g_position_area;
 flat out vec4 g_normal_radius;
@@ -105,19 +106,24 @@ void main() {
         ivec2 u0 = (max(X0 - cls, ivec2(0)) + (INTERLEAVE - 1)) / INTERLEAVE;
         ivec2 u1 = min((X1 - cls) / INTERLEAVE, size.zw - 1);
         if (u0.x > u1.x || u0.y > u1.y) continue;
-        vec2 origin = vec2(cls * size.zw + ivec2(0, u_level_y[l]));
-        vec2 lo = origin + vec2(u0), hi = origin + vec2(u1 + 1);
         g_level = l;
-        emit_corner(vec2(lo.x, lo.y));
-        emit_corner(vec2(hi.x, lo.y));
-        emit_corner(vec2(lo.x, hi.y));
-        emit_corner(vec2(hi.x, hi.y));
-        EndPrimitive();
+        // the level's grid receivers, then (l >= 1) its thin-face receivers: same layout and box
+        for (int j = 0; j < (l > 0 ? 2 : 1); ++j) {
+            int k = j == 0 ? l : thin_slot(l);
+            vec2 origin = vec2(cls * size.zw + ivec2(0, u_level_y[k]));
+            vec2 lo = origin + vec2(u0), hi = origin + vec2(u1 + 1);
+            emit_corner(vec2(lo.x, lo.y));
+            emit_corner(vec2(hi.x, lo.y));
+            emit_corner(vec2(lo.x, hi.y));
+            emit_corner(vec2(hi.x, hi.y));
+            EndPrimitive();
+        }
     }
 }
 #endif
 
 #if defined FRAGMENT_SHADER
+layout(early_fragment_tests) in;   // the receiver mask's depth test runs before the shader
 uniform sampler2D u_receiver_position;   // deinterleaved atlas (deinterleave.glsl)
 uniform sampler2D u_receiver_normal;
 flat in vec4 g_position_area;

@@ -1,5 +1,5 @@
-// Unshuffle + blur: every level pixel X (written in the plain level layout, level l from row
-// u_level_y[l]) averages the splatted irradiance of its (2 u_blur_radius + 1)^2 neighbours on
+// Unshuffle + blur: every level pixel X of every slot (grid and thin-face receivers; written in
+// the plain level layout, slot k from row u_level_y[k]) averages the splatted irradiance of its (2 u_blur_radius + 1)^2 neighbours on
 // the same surface, read from the deinterleaved atlas. Neighbours come from different
 // interleaved sub-buffers, so the average mixes the surfel subsets back together; the weights
 // balance the classes (class_weight).
@@ -25,15 +25,16 @@ float class_weight(int d) {
 void main() {
     out_irradiance = vec4(0.0);
     ivec2 a = ivec2(gl_FragCoord.xy);
-    int l = -1;
-    for (int k = 0; k < LEVELS; ++k) {
+    int slot = -1;
+    for (int k = 0; k < SLOTS; ++k) {
         ivec4 s = u_level_size[k];
-        if (a.y >= u_level_y[k] && a.y < u_level_y[k] + s.y && a.x < s.x) l = k;
+        if (a.y >= u_level_y[k] && a.y < u_level_y[k] + s.y && a.x < s.x) slot = k;
     }
-    if (l < 0) return;
-    ivec2 X = ivec2(a.x, a.y - u_level_y[l]);
-    ivec2 size = u_level_size[l].xy;
-    ivec2 ac = atlas_of(l, X);
+    if (slot < 0) return;
+    int l = slot_level(slot);
+    ivec2 X = ivec2(a.x, a.y - u_level_y[slot]);
+    ivec2 size = u_level_size[slot].xy;
+    ivec2 ac = atlas_of(slot, X);
     vec4 xp = texelFetch(u_receiver_position, ac, 0);
     if (xp.w == 0.0) return;
     vec3 np = texelFetch(u_receiver_normal, ac, 0).xyz;
@@ -44,7 +45,7 @@ void main() {
         for (int dx = -u_blur_radius; dx <= u_blur_radius; ++dx) {
             ivec2 Xn = X + ivec2(dx, dy);
             if (any(lessThan(Xn, ivec2(0))) || any(greaterThanEqual(Xn, size))) continue;
-            ivec2 an = atlas_of(l, Xn);
+            ivec2 an = atlas_of(slot, Xn);
             vec4 xq = texelFetch(u_receiver_position, an, 0);
             if (xq.w == 0.0) continue;
             float w = same_surface(xp.xyz, np, footprint, xq.xyz, texelFetch(u_receiver_normal, an, 0).xyz)
