@@ -107,3 +107,16 @@ def test_tiny_mirroring_scale_flips_the_winding(tmp_path):
     out = transformed(mesh, transform_matrix(scale=[-1e-110, 1e-110, 1e-110]))
     assert np.array_equal(out.faces, mesh.faces[:, ::-1])
     assert np.array_equal(transformed(mesh, transform_matrix(scale=1e-110)).faces, mesh.faces)
+
+
+def test_tiny_scale_keeps_unit_normals_without_overflow(tmp_path):
+    # scale 1.6e-291 (found by the fuzzer in CI): the inverse transpose's normals were ~1e290, whose
+    # squares overflowed in their norm (a RuntimeWarning escaping the reader)
+    from bench.model.meshfile import read_mesh, transform_matrix, transformed
+    (tmp_path / "m.obj").write_text(MESH_FILES["quad"])
+    mesh = read_mesh(tmp_path / "m.obj")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tiny = transformed(mesh, transform_matrix(rotate_deg=(-90, 0, 0), scale=1.6207867400787494e-291))
+    plain = transformed(mesh, transform_matrix(rotate_deg=(-90, 0, 0)))
+    assert np.allclose(tiny.normals, plain.normals, atol=1e-12)

@@ -434,8 +434,16 @@ def transformed(mesh: MeshData, matrix: np.ndarray) -> MeshData:
     """The mesh with positions and normals moved by a 4x4 affine `matrix`."""
     linear = matrix[:3, :3]
     vertices = mesh.vertices @ linear.T + matrix[:3, 3]
-    normals = mesh.normals @ np.linalg.inv(linear)  # inverse transpose, row vectors
-    normals /= np.maximum(np.linalg.norm(normals, axis=1, keepdims=True), 1e-300)
+    with np.errstate(over="ignore", invalid="ignore"):
+        normals = mesh.normals @ np.linalg.inv(linear)  # inverse transpose, row vectors
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+    if not np.all(np.isfinite(length)):
+        # a scale of 1e-291 gives normals whose squares overflow; a normal's direction does not depend
+        # on a uniform scale: the inverse of the matrix scaled to its largest entry, each row to its own
+        normals = mesh.normals @ np.linalg.inv(linear / np.abs(linear).max())
+        normals /= np.maximum(np.abs(normals).max(axis=1, keepdims=True), 1e-300)
+        length = np.linalg.norm(normals, axis=1, keepdims=True)
+    normals /= np.maximum(length, 1e-300)
     # slogdet: the sign of the determinant without overflow (scale 1e30) or underflow (1e-300)
     faces = mesh.faces[:, ::-1].copy() if np.linalg.slogdet(linear)[0] < 0 else mesh.faces
     return MeshData(vertices, faces, normals, mesh.material_index, mesh.material_names, mesh.material_kd,
