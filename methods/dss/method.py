@@ -91,6 +91,25 @@ drop empty slot pixels before shading (10% of the splat). Figures: NOTES.md, "Th
 paper's text is not in the project's papers folder: the thin-face slots are our reading of its
 multi-resolution splatting's refinement, not a quoted step.
 
+(5) The contact's near field (issue #23), an option, off by default. With `exact_reach` k > 0 a
+receiver closer to a surfel's centre than k times the surfel's reach (its farthest corner from
+the centre) takes the exact transfer from the surfel's sub-triangle of uniform radiosity B: E =
+B F, F the form factor from the receiver to the part of the sub-triangle above its tangent plane
+(Lambert's contour integral over the clipped triangle, at most 4 corners; a receiver within tau
+= max(1e-4 sqrt(A), 1e-2 eps) of the emitter's plane gets nothing, so a surface never lights
+itself; where the surfel's shading side is not its geometric side, the point term). With the
+option on, the surfel record carries two corners for it (the third is 3y minus them; 112 bytes,
+80 without it, so the defaults' buffer and splat are unchanged). Why it exists: the point term's
+emitter cosine, taken at the centre, is ~0 for a receiver in or near the surfel's plane, but a
+receiver at height h beside a perpendicular lit surface gets F -> 1/2 of its radiosity as h ->
+0, almost all from within a few h of the contact: lost_empire's 20 worst pixels (a wall row
+under a lit ceiling whose 0.5 m^2 voxel triangles are one surfel each) read 0.026 where Mitsuba
+has 0.15, and 0.14-0.20 with k = 4. Why it is off: the exact transfer of a surfel's mean
+radiosity is only as good as that mean at the contact, and at the defaults' surfel size (sponza
+0.9 m^2, reach ~1.2 m) a contact in a shadowed corner then gets the mean of a partly lit surfel:
+sponza's relMSE 0.149 -> 0.244 with k = 4, lost_empire's 0.0104 -> 0.084 (one pixel at a concave
+voxel edge, 0.33 where Mitsuba has 0.006). Figures: NOTES.md, "Contact light".
+
 With threshold 0, levels 1 and interleave 1 (and blur_radius 0) this is the exact sum over the
 surfels, which converges to the continuous one-bounce integral (and to jittered `manylights`,
 emission `lambert`) as surfel_count grows (tests/methods/test_dss.py).
@@ -112,6 +131,7 @@ Parameters:
 | eps_rel           | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps relative to the scene radius |
 | near_field        | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
 | near_field_scale  | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
+| exact_reach       | 0.0       | 0.0 .. 1000.0                  | a receiver closer to a surfel's centre than this many times its reach (farthest corner) takes the exact form factor of its sub-triangle instead of the point term (0: the point term everywhere) |
 | max_surfels       | 16000000  | 1 .. 100000000                 | skip a scene whose surfel count exceeds this |
 <!-- end of parameters -->
 
@@ -128,7 +148,8 @@ interleaved layout), `splat`, `unshuffle_blur` (unshuffle, blur, upsample, sum),
 shared `gbuffer_shadow` and `direct_light`. Needs: gbuffer, shadow_map, direct.
 
 Scale: every triangle gives at least one surfel, so a 10M-triangle scene needs a 10M-surfel
-buffer (80 B each, 800 MB) beside its 1.1 GB triangle records; `max_surfels` (16M) bounds that.
+buffer (80 B each, 800 MB; 112 B with `exact_reach`) beside its 1.1 GB triangle records;
+`max_surfels` (16M) bounds that.
 These buffers exceed the GL_MAX_SHADER_STORAGE_BLOCK_SIZE llvmpipe reports (128 MB) but are bound
 whole; llvmpipe and desktop GPUs (2 GB and more) address them. The cost is linear in the surfel
 count: the series' slope is in the report's cost-vs-triangles plot.
@@ -161,7 +182,7 @@ DSS_DEFINES = {"BINDING_DSS_TRIANGLES": 3, "BINDING_DSS_PATCHES": 4, "BINDING_DS
                "BINDING_DSS_COUNTER": 6}
 MAX_TESS_LEVEL = 64               # GL_MAX_TESS_GEN_LEVEL guaranteed by GL 4.x
 TRIANGLES_PER_LEVEL_SQ = 1.5      # GL's triangle tessellation with all levels n makes ~1.5 n^2 triangles
-SURFEL_BYTES = 80                 # std430 Surfel (dss_common.glsl)
+SURFEL_BYTES = {False: 80, True: 112}   # std430 Surfel (dss_common.glsl), without / with the corners of exact_reach
 COUNTER_INIT = np.array([0, 1, 0, 0, 0, 0], dtype=np.uint32)  # count, instances, first, base, pad, max lum
 KEY_CELL_BITS = 20                # triangle keys: centroids quantised to 2^-20 scene radii
 MAX_ORIENT_RADIUS = 8             # compose: same-orientation search window at most 17 x 17 level pixels
@@ -271,6 +292,9 @@ class DeepScreenSpace(MethodBase):
         "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
         "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
+        "exact_reach": Param(0.0, "a receiver closer to a surfel's centre than this many times its reach (farthest "
+                             "corner) takes the exact form factor of its sub-triangle instead of the point term "
+                             "(0: the point term everywhere)", 0.0, 1000.0),
         "max_surfels": Param(16_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
     }
 
@@ -297,7 +321,9 @@ class DeepScreenSpace(MethodBase):
         self.patch_count = len(patches)
 
         defines = dict(DSS_DEFINES, LEVELS=levels, SLOTS=2 * levels - 1, INTERLEAVE=interleave, MAX_TESS_LEVEL=MAX_TESS_LEVEL,
-                       TRIANGLES_PER_LEVEL_SQ=TRIANGLES_PER_LEVEL_SQ, IRRADIANCE_SPLITS=params["irradiance_splits"])
+                       TRIANGLES_PER_LEVEL_SQ=TRIANGLES_PER_LEVEL_SQ, IRRADIANCE_SPLITS=params["irradiance_splits"],
+                       EXACT_CONTACT=int(params["exact_reach"] > 0.0))
+        self.surfel_bytes = SURFEL_BYTES[params["exact_reach"] > 0.0]   # the corners only where rule (5) reads them
         self.triangles = ctx.buffer(records.tobytes())
         self.patches = ctx.buffer(patches.tobytes())
         self.counter = ctx.buffer(COUNTER_INIT.tobytes())
@@ -336,7 +362,7 @@ class DeepScreenSpace(MethodBase):
         if self.surfel_count > params["max_surfels"]:
             raise SkipRow(f"scene '{scene.name}' gives {self.surfel_count} surfels, more than "
                           f"max_surfels={params['max_surfels']}")
-        self.surfels = ctx.buffer(reserve=max(1, self.surfel_count) * SURFEL_BYTES)
+        self.surfels = ctx.buffer(reserve=max(1, self.surfel_count) * self.surfel_bytes)
         self.target_area = target_area
 
         self.deinterleave = load_program(ctx, SHADERS / "deinterleave.glsl", defines)
@@ -357,7 +383,8 @@ class DeepScreenSpace(MethodBase):
         set_uniforms(self.splat, u_proj=view.proj, u_near=float(view.near), u_screen=(view.width, view.height),
                      u_atlas=tuple(float(v) for v in atlas), u_scene_radius=float(gpu.radius),
                      u_radius_max=float(2.0 * gpu.radius * 1.01), u_threshold=params["threshold"],
-                     u_eps=float(params["eps_rel"] * gpu.radius), u_capacity=self.surfel_count)
+                     u_eps=float(params["eps_rel"] * gpu.radius), u_capacity=self.surfel_count,
+                     u_exact_reach=float(params["exact_reach"]))
         set_uniforms(self.unshuffle, u_blur_radius=params["blur_radius"])
         set_uniforms(self.compose, u_orient_radius=orient_radius(params["shell_pixels"]))
 

@@ -10,6 +10,14 @@
 // its geometric normal (Mitsuba's twosided diffuse with shading normals, as manylights).
 // (the receiver's rho/pi is applied after upsampling, at full resolution). d2 is the near field
 // of a surfel of area A at distance d (near_field.glsl: max(eps, d)^2, d^2 + A/pi, ...).
+// Within u_exact_reach times the surfel's reach (its farthest corner from the centre) the
+// point term gives way to the exact transfer from its sub-triangle of uniform radiosity B:
+//     E = B F,  F = 1/(2 pi) |sum_i angle(q_i, q_i+1) <n_x, q_i x q_i+1> / |q_i x q_i+1||
+// Lambert's contour integral of the form factor from the receiver to the part of the
+// sub-triangle above its tangent plane (q_i: the clipped polygon's corners relative to x). The
+// point term's cosine at the emitter, taken at the centre, vanishes for a receiver in (or near)
+// the emitter's plane, where most of the light at a right-angle contact comes from (a wall's
+// row under a lit ceiling: manual rule (5)).
 #include "common.glsl"
 #include "near_field.glsl"
 #include "dss_common.glsl"
@@ -23,6 +31,7 @@ uniform float u_scene_radius;   // R
 uniform float u_radius_max;     // no receiver is farther than the scene's diameter
 uniform float u_threshold;      // relative contribution threshold (0: no cut)
 uniform float u_eps;            // distance clamp
+uniform float u_exact_reach;    // exact sub-triangle transfer within this many reaches of a surfel (0: never)
 uniform uint u_rand;
 
 #if defined VERTEX_SHADER
@@ -39,6 +48,9 @@ flat out vec4 g_normal_radius;
 flat out vec3 g_shading_normal;
 flat out vec3 g_front;
 flat out vec3 g_back;
+flat out vec3 g_corner0;        // the sub-triangle's corners 0 and 1 minus its centre
+flat out vec3 g_corner1;
+flat out float g_exact_dist;    // below this centre distance the transfer is the exact one
 flat out int g_level;
 
 // Full-resolution pixel bounds (inclusive) of the sphere (view-space centre c, radius rho)
@@ -79,6 +91,17 @@ void main() {
     g_shading_normal = sf.shading_normal.xyz;
     g_front = sf.radiosity_front.rgb;
     g_back = sf.radiosity_back.rgb;
+#if EXACT_CONTACT
+    g_corner0 = sf.corner0.xyz;
+    g_corner1 = sf.corner1.xyz;
+    float reach = sqrt(max(max(dot(g_corner0, g_corner0), dot(g_corner1, g_corner1)),
+                           dot(g_corner0 + g_corner1, g_corner0 + g_corner1)));
+    g_exact_dist = u_exact_reach * reach;
+#else
+    g_corner0 = vec3(0.0);
+    g_corner1 = vec3(0.0);
+    g_exact_dist = 0.0;
+#endif
     for (int l = 0; l < LEVELS; ++l) {
         float b = exp2(float(l)) * u_shell_pixels * u_pixel_k;   // inner shell edge / receiver depth
         if (l > 0) {
@@ -131,8 +154,36 @@ flat in vec4 g_normal_radius;
 flat in vec3 g_shading_normal;
 flat in vec3 g_front;
 flat in vec3 g_back;
+flat in vec3 g_corner0;
+flat in vec3 g_corner1;
+flat in float g_exact_dist;
 flat in int g_level;
 layout(location = 0) out vec4 out_irradiance;
+
+// Form factor from a receiver (unit normal nx) to the triangle q0 q1 q2 (corners relative to the
+// receiver): Lambert's contour integral over the triangle clipped to the receiver's tangent plane
+// lifted by tau (at most four corners). The angle by atan (llvmpipe's acos is off by ~1e-4 rad).
+float triangle_form_factor(vec3 q0, vec3 q1, vec3 q2, vec3 nx, float tau) {
+    vec3 q[3] = vec3[3](q0, q1, q2);
+    vec3 poly[4];
+    int m = 0;
+    for (int i = 0; i < 3; ++i) {
+        vec3 a = q[i], b = q[(i + 1) % 3];
+        float ha = dot(nx, a) - tau, hb = dot(nx, b) - tau;
+        if (ha >= 0.0) poly[m++] = a;
+        if ((ha >= 0.0) != (hb >= 0.0)) poly[m++] = a + (b - a) * (ha / (ha - hb));
+    }
+    if (m < 3) return 0.0;
+    float sum = 0.0;
+    for (int i = 0; i < m; ++i) {
+        vec3 a = normalize(poly[i]), b = normalize(poly[(i + 1) % m]);
+        vec3 c = cross(a, b);
+        float s = length(c);
+        if (s > 0.0) sum += atan(s, dot(a, b)) * dot(nx, c) / s;
+    }
+    return min(abs(sum) * (0.5 * INV_PI), 1.0);
+}
+
 void main() {
     ivec2 a = ivec2(gl_FragCoord.xy);
     vec4 xp = texelFetch(u_receiver_position, a, 0);   // w: view depth, 0 if no receiver
@@ -145,10 +196,27 @@ void main() {
     float cos_y = dot(g_normal_radius.xyz, w);
     vec3 radiosity = dot(g_shading_normal, w) < 0.0 ? g_front : g_back;   // the side the receiver is on
     if (all(equal(radiosity, vec3(0.0)))) discard;
-    float cos_x = dot(texelFetch(u_receiver_normal, a, 0).xyz, w);
-    if (cos_x <= 0.0) discard;
-    float d2 = near_field_d2(dist, g_position_area.w, u_eps);
+    vec3 nx = texelFetch(u_receiver_normal, a, 0).xyz;
     float weight = float(INTERLEAVE * INTERLEAVE);
-    out_irradiance = vec4(radiosity * (INV_PI * cos_x * abs(cos_y) * g_position_area.w / d2 * weight), 0.0);
+    float transfer;
+    // exact near the surfel where its shading side is its geometric side (always on flat-shaded
+    // faces; a receiver beside a smooth-shaded edge may see a side's radiosity from behind its
+    // plane, where the exact transfer would let the lit side's light through: point term there)
+#if EXACT_CONTACT
+    if (dist < g_exact_dist && (dot(g_shading_normal, w) < 0.0) == (cos_y < 0.0)) {
+        // a receiver within tau of the emitter's plane gets nothing (the point term's cos_y = 0;
+        // tau absorbs float32 noise so a surface never lights itself)
+        float tau = max(1e-4 * sqrt(g_position_area.w), 1e-2 * u_eps);
+        if (abs(dot(g_normal_radius.xyz, d)) <= tau) discard;
+        transfer = triangle_form_factor(d + g_corner0, d + g_corner1, d - g_corner0 - g_corner1, nx, tau);
+        if (!(transfer > 0.0)) discard;
+    } else
+#endif
+    {
+        float cos_x = dot(nx, w);
+        if (cos_x <= 0.0) discard;
+        transfer = INV_PI * cos_x * abs(cos_y) * g_position_area.w / near_field_d2(dist, g_position_area.w, u_eps);
+    }
+    out_irradiance = vec4(radiosity * (transfer * weight), 0.0);
 }
 #endif

@@ -178,7 +178,12 @@ void main() {
     uint triangle_key = uint(dss_triangles[t].normal.w);
     uint key = hash_u32(triangle_key * 2654435761u ^ hash_u32(dss_patches[e_patch[0]].z ^
                         hash_u32(floatBitsToUint(cc.x) ^ hash_u32(floatBitsToUint(cc.y)))));
+#if EXACT_CONTACT
+    surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, 0.0),
+                            vec4(e_position[0] - y, 0.0), vec4(e_position[1] - y, 0.0));
+#else
     surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, 0.0));
+#endif
 #endif
 }
 #endif
