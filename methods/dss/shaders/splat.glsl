@@ -210,13 +210,15 @@ void main() {
         if (abs(dot(g_normal_radius.xyz, d)) <= tau) discard;
         transfer = triangle_form_factor(d + g_corner0, d + g_corner1, d - g_corner0 - g_corner1, nx, tau);
         if (!(transfer > 0.0)) discard;
+        transfer *= weight;
     } else
 #endif
     {
         float cos_x = dot(nx, w);
         if (cos_x <= 0.0) discard;
-        transfer = INV_PI * cos_x * abs(cos_y) * g_position_area.w / near_field_d2(dist, g_position_area.w, u_eps);
+        float d2 = near_field_d2(dist, g_position_area.w, u_eps);
+        transfer = INV_PI * cos_x * abs(cos_y) * g_position_area.w / d2 * weight;   // (the point term's float order)
     }
-    out_irradiance = vec4(radiosity * (transfer * weight), 0.0);
+    out_irradiance = vec4(radiosity * transfer, 0.0);
 }
 #endif
