@@ -13,7 +13,8 @@ from methods.ir_shadowed.method import InstantRadiosityShadowed
 from methods.val_clustered.method import ClusteredVirtualAreaLights, interleave_block
 
 W, H = 96, 72
-PAPER = {"val_origin": "centre", "near_ignore": 0.5, "cssm_kernel": "lod", "fourier_terms": 4, "interleave": 8}
+PAPER = {"val_origin": "centre", "near_ignore": 0.5, "cssm_kernel": "lod", "fourier_terms": 4, "interleave": 8,
+         "contact_test": "off"}
 
 
 @pytest.fixture(scope="module")

@@ -72,11 +72,108 @@ vec2 csm_filtered_z(vec2 at, float lod, float d) {
     return vec2(0.5 * z + 2.0 * zf, z);
 }
 
+uniform float u_contact_band;  // normalised depth over which the sharpened CSM step falls from 1 to 0 (manual)
 uniform float u_kernel_scale;  // MIP footprint per kernel width: 1 / sqrt(3) matches a box's variance (manual)
 
 float kernel_lod(float angle, float texture_per_radian) {
     float texels = angle * texture_per_radian * float(u_resolution) * u_kernel_scale;
     return min(log2(max(texels, 1.0)), float(MAX_LOD));
+}
+#endif
+
+#if CONTACT_TEST
+// The unit direction (world) of texel tt's centre in a VAL's map with tangent frame (t, b, n).
+vec3 texel_direction(ivec2 tt, vec3 t, vec3 b, vec3 n) {
+    vec2 uc = (vec2(tt) + 0.5) / float(u_resolution) * 2.0 - 1.0;
+    float uu = dot(uc, uc);
+    vec3 dl = vec3(2.0 * uc, 1.0 - uu) / (1.0 + uu);
+    return dl.x * t + dl.y * b + dl.z * n;
+}
+
+// The stored distance of texel tt of the map at atlas offset `tile` (MAP_EMPTY outside the map).
+float map_distance(ivec2 tile, ivec2 tt) {
+    if (any(lessThan(tt, ivec2(0))) || any(greaterThanEqual(tt, ivec2(u_resolution)))) return MAP_EMPTY;
+    return texelFetch(u_depth_atlas, tile + tt, 0).r;
+}
+
+// The tangent from p0 (texel tt's point, distance `stored`) to the point of texel tt + step, and
+// whether it lies on p0's surface: that texel and the next one beyond it continue p0's distance.
+bool surface_tangent(ivec2 tile, ivec2 tt, ivec2 step, float stored, vec3 o, vec3 p0, vec3 t, vec3 b, vec3 nv,
+                     out vec3 tangent) {
+    float s1 = map_distance(tile, tt + step);
+    float s2 = map_distance(tile, tt + 2 * step);
+    float err = s2 >= 0.5 * MAP_EMPTY ? abs(s1 - stored) : abs(2.0 * s1 - s2 - stored);
+    tangent = o + s1 * texel_direction(tt + step, t, b, nv) - p0;
+    return s1 < 0.5 * MAP_EMPTY && err <= CONTACT_COPLANAR * stored;
+}
+
+// Whether the surface texel tt shows (its point p0 = o + stored d0) separates the map origin o
+// from the receiver x. Its local plane is reconstructed from the stored points of the texels
+// next to it: per map axis each side whose two texels continue p0's distance (second difference
+// within CONTACT_COPLANAR of the distance: no depth discontinuity) gives a tangent, and each pair
+// of tangents a candidate plane. Beside a crease a candidate is the chord across it, so the texel
+// separates only if every candidate has o and x on opposite sides, x more than CONTACT_TOLERANCE
+// of the stored distance beyond it: a receiver beside an inside corner lies in front of the
+// adjacent wall's own plane, a receiver under a lip or behind a wall beyond every one. A texel
+// without a continuing neighbour along an axis (a feature one texel wide) counts as separating.
+// The first candidate with o and x on one side ends the test; a v side is fetched when needed.
+bool contact_separates(ivec2 tile, ivec2 tt, float stored, vec3 o, vec3 x, vec3 t, vec3 b, vec3 nv) {
+    vec3 p0 = o + stored * texel_direction(tt, t, b, nv);
+    vec3 tv[2];
+    bool valid_v[2];
+    bool fetched_v[2] = bool[2](false, false);   // the v sides are fetched when first needed
+    for (int i = 0; i < 2; ++i) {
+        vec3 tu;
+        if (!surface_tangent(tile, tt, ivec2(2 * i - 1, 0), stored, o, p0, t, b, nv, tu)) continue;
+        for (int k = 0; k < 2; ++k) {
+            if (!fetched_v[k]) {
+                valid_v[k] = surface_tangent(tile, tt, ivec2(0, 2 * k - 1), stored, o, p0, t, b, nv, tv[k]);
+                fetched_v[k] = true;
+            }
+            if (!valid_v[k]) continue;
+            vec3 nb = cross(tu, tv[k]);
+            float len = length(nb);
+            if (len <= 0.0) continue;
+            nb /= len;
+            float side_o = dot(o - p0, nb);
+            float side_x = dot(x - p0, nb);
+            if (side_o * side_x >= 0.0 || abs(side_x) <= CONTACT_TOLERANCE * stored) return false;
+        }
+    }
+    return true;
+}
+
+// Contact blockers (see the method's manual): the fraction of the bilinear 2 x 2 texel footprint
+// around map coordinates uv whose stored surface lies in front of the receiver's own plane
+// (through x, normal n_geo) along the texel's own direction by more than CONTACT_TOLERANCE of
+// that distance, and less than `band` in front of the lifted receiver at distance d_world. The
+// map stores each texel's exact distance along its centre direction, so a texel showing the
+// receiver's own plane compares equal whatever the slope: no depth bias is needed, and a
+// blocker millimetres in front of the receiver (a zero-thickness wall at a junction, a lip over
+// a slot) is found where the CSM step's ramp or a one-texel bias lets it through.
+float contact_blocked(int j, Val c, vec3 o, vec3 x, vec3 n_geo, vec2 uv, float d_world, float band, float texel, float lambda) {
+    vec3 t, b;
+    orthonormal_basis(c.normal.xyz, t, b);
+    ivec2 tile = ivec2(j % u_tiles_x, j / u_tiles_x) * u_resolution;
+    vec2 s = (uv * 0.5 + 0.5) * float(u_resolution) - 0.5;
+    vec2 i0 = floor(s);
+    vec2 fr = s - i0;
+    float plane = dot(x - o, n_geo);
+    float blocked = 0.0;
+    for (int k = 0; k < 4; ++k) {
+        ivec2 off = ivec2(k & 1, k >> 1);
+        ivec2 tt = clamp(ivec2(i0) + off, ivec2(0), ivec2(u_resolution - 1));
+        float stored = texelFetch(u_depth_atlas, tile + tt, 0).r;
+        if (stored >= d_world || d_world - stored >= band) continue;
+        float den = dot(texel_direction(tt, t, b, c.normal.xyz), n_geo);
+        float t_own = plane / den;                                        // its distance to x's plane
+        if (den != 0.0 && t_own > 0.0 && stored >= t_own * (1.0 - CONTACT_TOLERANCE)) continue;
+        if (!contact_separates(tile, tt, stored, o, x, t, b, c.normal.xyz)) continue;
+        vec2 w = mix(1.0 - fr, fr, vec2(off));
+        float spread = lambda * (d_world - stored);   // the VAL's footprint on the blocker, times d_world
+        blocked += w.x * w.y * (spread <= texel * d_world ? 1.0 : texel * d_world / spread);
+    }
+    return blocked;
 }
 #endif
 
@@ -103,7 +200,8 @@ float val_visibility(int j, vec3 x, vec3 n_geo) {
     float d_world = length(rel);
     float cos_theta;
     vec2 uv = paraboloid_uv(c, rel, cos_theta);
-    if (cos_theta <= 0.0) {
+    bool in_map = cos_theta > 0.0;  // in front of the VAL's plane (else the horizon texel, or visible)
+    if (!in_map) {
 #if BEHIND_HORIZON
         // behind the VAL's plane (no map there): the map's horizon in the receiver's azimuth
         // holds the receiver's distance or not (see the manual); straight below: visible
@@ -116,6 +214,12 @@ float val_visibility(int j, vec3 x, vec3 n_geo) {
     }
 #if VISIBILITY_CSSM
     float far = c.flux.w;
+#if CONTACT_TEST
+    float contact = in_map ? contact_blocked(j, c, o, x, n_geo, uv, d_world, u_contact_band * far, texel, c.normal.w) : 0.0;
+    if (contact >= 1.0) return 0.0;
+#else
+    float contact = 0.0;
+#endif
     float d = min(d_world / far, 1.0);
     float lambda = c.normal.w;
     vec2 tex = uv * 0.5 + 0.5;
@@ -124,18 +228,21 @@ float val_visibility(int j, vec3 x, vec3 n_geo) {
     float search_lod = max(kernel_lod(search, per_radian), 1.0);  // the basis-z starts at level 1
     vec2 search_at = atlas_coord(j, tex, search_lod);
     float blocked = 1.0 - csm_filtered(search_at, search_lod, d);  // [w * f_b]
-    if (blocked < u_blocker_min) return 1.0;
+    if (blocked < u_blocker_min) return 1.0 - contact;
     vec2 zfz = csm_filtered_z(search_at, search_lod, d);
     float z_avg = clamp((zfz.y - zfz.x) / blocked, 1e-6, d);     // [w * z f_b] / [w * f_b]
     float z_avg_world = z_avg * far;
     float alpha = atan(lambda * (d_world - z_avg_world), z_avg_world * d_world);
     float lod = kernel_lod(alpha, per_radian);
     float rec = csm_filtered(atlas_coord(j, tex, lod), lod, d);
-    return clamp(1.0 + u_csm_sharpening * (rec - 0.5), 0.0, 1.0);
+    return clamp(1.0 + u_csm_sharpening * (rec - 0.5), 0.0, 1.0) * (1.0 - contact);
 #else
     ivec2 tile = ivec2(j % u_tiles_x, j / u_tiles_x);
     ivec2 t = clamp(ivec2((uv * 0.5 + 0.5) * float(u_resolution)), ivec2(0), ivec2(u_resolution - 1));
     float stored = texelFetch(u_depth_atlas, tile * u_resolution + t, 0).r;
+#if CONTACT_TEST
+    if (in_map && contact_blocked(j, c, o, x, n_geo, uv, d_world, texel, texel, 0.0) >= 0.5) return 0.0;
+#endif
     return d_world <= stored + texel ? 1.0 : 0.0;
 #endif
 }
