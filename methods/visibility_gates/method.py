@@ -63,9 +63,13 @@ Paper formula corrections and readings (checked against the invariant each must 
   open scenes), not the distance transform of the voxels, which measured to the thickened
   voxel surface and made the radii, hence the clusters, depend on voxel_resolution.
 - Voxelization (IV.A, "a binary voxelization"): a voxel is occupied when its centre is within
-  sqrt(3)/2 voxel of a triangle (exact distance). The thinning treats the empty space as
-  26-connected; a sampled voxelization (a voxel holding a point of a triangle) leaves
-  26-connected holes in a tilted wall, through which the skeleton passes.
+  sqrt(3)/2 voxel of a triangle (exact distance; `occupancy=sphere`, the default). The thinning
+  treats the empty space as 26-connected; a sampled voxelization (a voxel holding a point of a
+  triangle) leaves 26-connected holes in a tilted wall, through which the skeleton passes.
+  `occupancy=touch` is the paper's voxels touching a surface: occupied when the closed cube
+  intersects a triangle (exact separating-axis test), a thinner shell that still closes every
+  wall (the segment between two 26-adjacent centres lies in their two closed cubes). Measured at
+  the defaults it is no default: see NOTES.md ("Touching voxels").
 - Open scenes (the paper's own Sponza has an open roof): the empty space is the enclosed
   components plus the component around the geometry that holds a camera eye or a positional
   light ("the empty space, where light travels", III), closed by the scene's bounding box
@@ -161,7 +165,8 @@ conference (1.08), cornell_box (1.10) and holodeck (1.05). Sponza is darker (0.5
 bounce; the paper's own "slightly darker than the reference", VI.B: its atrium, arcades and
 galleries are not quasi-convex with one another, light between them crosses few gates, and the
 thin clusters along its columns and arches receive little), and lost_empire's topology at 64
-voxels over-closes its caves (0.69, relMSE above no indirect). A finer grid is no default: at
+voxels over-closes its caves (0.69, relMSE above no indirect; the thinner `occupancy=touch`
+shell opens more of them and splits the lit cavern further: 0.60, relMSE 1.27, NOTES.md). A finer grid is no default: at
 128 voxels (with a first `border_gates`, one polygon per patch) sponza reads 0.45 (mean 0.81) but sibenik 0.83, conference 2.2
 (23 s a frame) and lost_empire 1.8.
 
@@ -180,6 +185,7 @@ Parameters:
 |------------------------|-----------|--------------------------------|---|
 | vpl_count              | 1024      | 1 .. 65536                     | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 64, 256, 1024, 4096) |
 | voxel_resolution       | 64        | 16 .. 256                      | voxels along the scene's longest bounding-box side (precomputation) (quality knob; sweep 32, 64, 128) |
+| occupancy              | sphere    | touch, sphere                  | voxelization (precomputation): touch, a voxel is occupied when its cube meets a triangle; sphere, when its centre is within sqrt(3)/2 voxel of one (thicker) |
 | alpha_percent          | 20.0      | 0.0 .. 1000.0                  | skeleton nodes join a visibility cluster when their maximal-ball radius is within alpha % of the cluster's largest |
 | merge_gate_fraction    | 0.75      | 0.0 .. 2.0                     | clusters joined by a gate at least this fraction as wide as the smaller cluster's largest maximal ball are merged (above 1: never) |
 | merge_visible_fraction | 0.5       | 0.0 .. 1.0                     | a merge also needs this fraction of the straight segments between the two clusters' skeleton nodes inside the empty space (the merged cluster stays quasi-convex; 0: no test) |
@@ -228,6 +234,7 @@ from bench.gl.vpl import VPL_DEFINES, RsmVplSampler
 
 from .gates import MAX_GATE_EDGES
 from .topology import Topology, TopologyError, build_topology
+from .voxels import DEFAULT_OCCUPANCY, OCCUPANCIES
 
 SHADERS = Path(__file__).parent / "shaders"
 TILE = 16            # clustered-shading screen tile (pixels); TILE^2 = the local sort's size
@@ -251,20 +258,21 @@ def topology_seeds(scene) -> np.ndarray:
 
 
 def topology_key(scene, resolution: int, alpha_percent: float, merge_fraction: float,
-                 merge_visible: float = 0.0, border_gates: bool = False) -> tuple:
+                 merge_visible: float = 0.0, border_gates: bool = False, occupancy: str = DEFAULT_OCCUPANCY) -> tuple:
     return (scene.content_hash(), int(resolution), float(alpha_percent), float(merge_fraction), float(merge_visible),
-            bool(border_gates))
+            bool(border_gates), str(occupancy))
 
 
 def scene_topology(scene, resolution: int, alpha_percent: float, merge_fraction: float,
-                   merge_visible: float = 0.0, border_gates: bool = False) -> tuple[Topology, bool]:
+                   merge_visible: float = 0.0, border_gates: bool = False,
+                   occupancy: str = DEFAULT_OCCUPANCY) -> tuple[Topology, bool]:
     """The scene's topology (built, or from the small in-process cache) and whether it was cached."""
-    key = topology_key(scene, resolution, alpha_percent, merge_fraction, merge_visible, border_gates)
+    key = topology_key(scene, resolution, alpha_percent, merge_fraction, merge_visible, border_gates, occupancy)
     if key in _TOPOLOGY_CACHE:
         _TOPOLOGY_CACHE.move_to_end(key)
         return _TOPOLOGY_CACHE[key], True
     topo = build_topology(scene.vertices, scene.faces, resolution, alpha_percent, merge_fraction,
-                          topology_seeds(scene), scene.name, merge_visible, border_gates)
+                          topology_seeds(scene), scene.name, merge_visible, border_gates, occupancy)
     _TOPOLOGY_CACHE[key] = topo
     while len(_TOPOLOGY_CACHE) > _CACHE_SIZE:
         _TOPOLOGY_CACHE.popitem(last=False)
@@ -300,6 +308,9 @@ class VisibilityGates(MethodBase):
         "vpl_count": Param(1024, VPL_COUNT_DOC, 1, 65536, quality=True, sweep=(64, 256, 1024, 4096)),
         "voxel_resolution": Param(64, "voxels along the scene's longest bounding-box side (precomputation)",
                                   16, 256, quality=True, sweep=(32, 64, 128)),
+        "occupancy": Param(DEFAULT_OCCUPANCY, "voxelization (precomputation): touch, a voxel is occupied when its "
+                                              "cube meets a triangle; sphere, when its centre is within sqrt(3)/2 "
+                                              "voxel of one (thicker)", choices=OCCUPANCIES),
         "alpha_percent": Param(20.0, "skeleton nodes join a visibility cluster when their maximal-ball radius "
                                      "is within alpha % of the cluster's largest", 0.0, 1000.0),
         "merge_gate_fraction": Param(0.75, "clusters joined by a gate at least this fraction as wide as the smaller "
@@ -335,7 +346,7 @@ class VisibilityGates(MethodBase):
         if "geometry" not in changes and np.all(self.topology.cluster_of(topology_seeds(scene)) >= 0):
             key = topology_key(scene, params["voxel_resolution"], params["alpha_percent"],
                                params["merge_gate_fraction"], params["merge_visible_fraction"],
-                               params["border_gates"])
+                               params["border_gates"], params["occupancy"])
             _TOPOLOGY_CACHE[key] = self.topology
         super().update(gpu, scene, facts, params, view, changes)
 
@@ -345,7 +356,7 @@ class VisibilityGates(MethodBase):
         try:
             topo, cached = scene_topology(scene, params["voxel_resolution"], params["alpha_percent"],
                                           params["merge_gate_fraction"], params["merge_visible_fraction"],
-                                          params["border_gates"])
+                                          params["border_gates"], params["occupancy"])
         except TopologyError as exc:
             raise SkipRow(str(exc)) from None
         if topo.cluster_count >= 1 << CLUSTER_BITS:

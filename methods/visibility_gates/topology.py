@@ -30,7 +30,7 @@ from skimage.segmentation import watershed
 
 from .gates import GateSet, border_gates, gates_between, merge_wide_gates, paper_gate_radii
 from .skeleton import KIND_UNCLASSIFIED, cluster, prune_spurs, segment, skeleton_graph
-from .voxels import OCCUPIED_DISTANCE, voxelize
+from .voxels import DEFAULT_OCCUPANCY, OCCUPIED_DISTANCE, voxelize
 
 SIDE_REACH = 3.0     # gate radii: how far along its wall a gate's plane decides the side of a point
 
@@ -174,11 +174,12 @@ def cluster_grid(empty: np.ndarray, skel_coords: np.ndarray, node_cluster: np.nd
 # ----------------------------------------------------------------------------- all steps
 def build_topology(vertices: np.ndarray, faces: np.ndarray, resolution: int, alpha_percent: float,
                    merge_fraction: float, seeds=(), scene_name: str = "scene",
-                   merge_visible: float = 0.0, cover_borders: bool = False) -> Topology:
+                   merge_visible: float = 0.0, cover_borders: bool = False,
+                   occupancy: str = DEFAULT_OCCUPANCY) -> Topology:
     vertices, faces = np.asarray(vertices, float), np.asarray(faces)
     timings = {}
     t = time.perf_counter()
-    _, empty, origin, pitch, closed_by_box, surface = voxelize(vertices, faces, resolution, seeds)
+    _, empty, origin, pitch, closed_by_box, surface = voxelize(vertices, faces, resolution, seeds, occupancy)
     timings["voxelize"] = time.perf_counter() - t
     if not empty.any():
         raise TopologyError(f"scene '{scene_name}' has no empty space at voxel_resolution={resolution}: no "

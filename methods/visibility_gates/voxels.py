@@ -1,9 +1,10 @@
 """Visibility Gates precomputation, step 1 (topology.py runs every step): exact point-to-scene
 distances and the binary voxelization of the empty space light travels in.
 
-1. `voxelize`: a voxel is occupied when its centre is within sqrt(3)/2 voxel of a triangle
-   (exact distances, `SurfaceIndex`), so the 26-connected empty space never passes through a
-   surface. The empty space is every component of empty voxels not reaching the grid's border,
+1. `voxelize`: by default ("sphere") a voxel is occupied when its centre is within sqrt(3)/2
+   voxel of a triangle (exact distances, `SurfaceIndex`); with occupancy "touch" when its closed
+   cube intersects a triangle (`touched_voxels`, Akenine-Moller's separating-axis test, a
+   thinner shell). Under both the 26-connected empty space never passes through a surface. The empty space is every component of empty voxels not reaching the grid's border,
    plus, for open scenes, the component around the geometry holding a camera eye or positional
    light, closed by the bounding box enlarged by PAD voxels.
 `SurfaceIndex` also measures the skeleton nodes' maximal balls and the gates' openings.
@@ -15,8 +16,67 @@ import trimesh
 from scipy import ndimage
 from scipy.spatial import cKDTree
 
-OCCUPIED_DISTANCE = 0.5 * np.sqrt(3.0)  # voxels: centre-to-triangle distance of an occupied voxel
+OCCUPIED_DISTANCE = 0.5 * np.sqrt(3.0)  # voxels: centre-to-triangle distance of an occupied voxel (sphere)
 PAD = 2  # voxels between the scene's bounding box and the grid border (the closing box)
+OCCUPANCIES = ("touch", "sphere")  # voxelize's rules: the closed cube meets a triangle; its circumscribed ball does
+DEFAULT_OCCUPANCY = "sphere"
+SAT_TOLERANCE = 1e-9  # relative slack of the separating-axis test: a cube grazing a triangle counts as touching
+PAIR_CHUNK = 2_000_000  # candidate (voxel, triangle) pairs tested at once
+
+
+def triangle_box_overlap(tri: np.ndarray, centre: np.ndarray, half: float = 0.5) -> np.ndarray:
+    """Does each closed axis-aligned cube (centre (N, 3), half edge `half`) intersect its triangle
+    (N, 3, 3)? Akenine-Moller's separating-axis test, vectorised: the cube's three axes, the
+    triangle's normal and the nine cross products of its edges with the cube's axes; the two are
+    disjoint iff their projections on one of these 13 axes are disjoint. Touching counts as
+    overlapping (closed sets, SAT_TOLERANCE of slack). A degenerate triangle (segment, point)
+    is tested exactly too: its zero axes separate nothing, the remaining ones are a segment's
+    or a point's own."""
+    v = np.asarray(tri, float) - np.asarray(centre, float)[:, None, :]
+    slack = 1.0 + SAT_TOLERANCE
+    apart = np.any(v.min(axis=1) > half * slack, axis=1) | np.any(v.max(axis=1) < -half * slack, axis=1)
+    e = np.stack([v[:, 1] - v[:, 0], v[:, 2] - v[:, 1], v[:, 0] - v[:, 2]], axis=1)  # (N, 3 edges, 3)
+    n = np.cross(e[:, 0], e[:, 1])
+    r = half * np.abs(n).sum(axis=1)
+    apart |= np.abs(np.einsum("nc,nc->n", n, v[:, 0])) > r * slack
+    for j in range(3):  # edge x cube axis j: (0, -e_z, e_y), (e_z, 0, -e_x), (-e_y, e_x, 0)
+        a = np.zeros_like(e)
+        k1, k2 = (j + 1) % 3, (j + 2) % 3
+        a[..., k1] = e[..., k2]
+        a[..., k2] = -e[..., k1]
+        p = np.einsum("nec,nvc->nev", a, v)  # (N, 3 axes, 3 vertices)
+        r = half * np.abs(a).sum(axis=2)
+        apart |= np.any((p.min(axis=2) > r * slack) | (p.max(axis=2) < -r * slack), axis=1)
+    return ~apart
+
+
+def touched_voxels(vertices: np.ndarray, faces: np.ndarray, origin: np.ndarray, pitch: float, dims) -> np.ndarray:
+    """Conservative voxelization: the voxels whose closed cube intersects a triangle (exact,
+    `triangle_box_overlap`), as a bool grid of shape `dims`. Candidates: every voxel of each
+    triangle's closed bounding box, tested in chunks of PAIR_CHUNK pairs."""
+    dims = np.asarray(dims, np.int64)
+    tri = (np.asarray(vertices, float)[np.asarray(faces)] - origin) / pitch  # voxel units
+    # closed cube i spans [i, i + 1]: it meets [a, b] iff a - 1 <= i <= b (a hair wider: the test decides)
+    lo = np.clip(np.ceil(tri.min(axis=1) - 1.0 - 1e-6).astype(np.int64), 0, dims - 1)
+    hi = np.clip(np.floor(tri.max(axis=1) + 1e-6).astype(np.int64), 0, dims - 1)
+    lo = np.minimum(lo, hi)
+    extent = hi - lo + 1
+    counts = extent.prod(axis=1)
+    occupied = np.zeros(tuple(dims), dtype=bool)
+    ends = np.cumsum(counts)
+    start = 0
+    while start < len(tri):
+        # triangles [start, stop) hold at most PAIR_CHUNK pairs (at least one triangle)
+        base = ends[start - 1] if start else 0
+        stop = max(int(np.searchsorted(ends, base + PAIR_CHUNK, side="right")), start + 1)
+        t = np.repeat(np.arange(start, stop), counts[start:stop])
+        k = np.arange(len(t)) - np.repeat(ends[start:stop] - counts[start:stop] - base, counts[start:stop])
+        ex = extent[t]
+        idx = lo[t] + np.stack([k // (ex[:, 1] * ex[:, 2]), (k // ex[:, 2]) % ex[:, 1], k % ex[:, 2]], axis=1)
+        hit = triangle_box_overlap(tri[t], idx + 0.5)
+        occupied[tuple(idx[hit].T)] = True
+        start = stop
+    return occupied
 
 
 def surface_samples(vertices: np.ndarray, faces: np.ndarray, spacing: float):
@@ -80,11 +140,18 @@ class SurfaceIndex:
         return out
 
 
-def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int, seeds=()):
+def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int, seeds=(), occupancy: str = DEFAULT_OCCUPANCY):
     """Binary voxelization and the empty space light travels in.
 
-    A voxel is occupied when its centre is within sqrt(3)/2 voxel of a triangle (exact distance,
-    OCCUPIED_DISTANCE): the segment between the centres of two 26-adjacent voxels that crosses a
+    occupancy "touch": a voxel is occupied when its closed cube intersects a triangle
+    (`touched_voxels`, the conservative voxelization: the paper's voxels touching a surface).
+    The segment between the centres of two 26-adjacent voxels lies in the union of their two
+    closed cubes (each coordinate moves by 0 or 1 voxel: up to its middle it stays in the
+    first cube, from there in the second), so a triangle crossing it meets one of them, which is
+    occupied: the 26-connected empty space never passes through a surface. A touched voxel's
+    centre is within sqrt(3)/2 voxel of the triangle, so this shell is a subset of "sphere"'s.
+    occupancy "sphere": a voxel is occupied when its centre is within sqrt(3)/2 voxel of a triangle (exact distance,
+    OCCUPIED_DISTANCE), a ball circumscribing the cube: the segment between the centres of two 26-adjacent voxels that crosses a
     triangle has one end within sqrt(3)/2 voxel of the crossing, so the 26-connected empty space
     (the connectivity of scikit-image's thinning) never passes through a surface, however it is
     tilted. Sampling the triangles instead, as before, let the skeleton leak through tilted
@@ -99,7 +166,19 @@ def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int, seeds=())
     pitch = float((hi - lo).max()) / int(resolution)
     origin = lo - PAD * pitch
     dims = np.ceil((hi - origin) / pitch).astype(np.int64) + PAD
+    if occupancy not in OCCUPANCIES:
+        raise ValueError(f"voxelize: occupancy '{occupancy}' is not one of {', '.join(OCCUPANCIES)}")
     surface = SurfaceIndex(vertices, faces, 0.5 * pitch)
+    if occupancy == "touch":
+        occupied = touched_voxels(vertices, faces, origin, pitch, dims)
+    else:
+        occupied = sphere_voxels(surface, origin, pitch, dims)
+    return empty_space(occupied, origin, pitch, seeds) + (surface,)
+
+
+def sphere_voxels(surface: SurfaceIndex, origin: np.ndarray, pitch: float, dims) -> np.ndarray:
+    """The voxels whose centre is within OCCUPIED_DISTANCE voxel of a triangle (exact distance)."""
+    dims = np.asarray(dims, np.int64)
     idx = np.clip(np.floor((surface.points - origin) / pitch).astype(np.int64), 0, dims - 1)
     near = np.zeros(tuple(dims), dtype=bool)
     near[idx[:, 0], idx[:, 1], idx[:, 2]] = True
@@ -107,6 +186,13 @@ def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int, seeds=())
     band = np.argwhere(ndimage.binary_dilation(near, structure=np.ones((3, 3, 3), bool)))
     occupied = np.zeros(tuple(dims), dtype=bool)
     occupied[tuple(band[surface.near(origin + (band + 0.5) * pitch, OCCUPIED_DISTANCE * pitch)].T)] = True
+    return occupied
+
+
+def empty_space(occupied: np.ndarray, origin: np.ndarray, pitch: float, seeds=()):
+    """The enclosed 26-connected components of ~occupied, plus the open one holding a seed
+    (closed by the grid's outermost layer). Returns (occupied, empty, origin, pitch, closed_by_box)."""
+    dims = np.asarray(occupied.shape)
     labels, _ = ndimage.label(~occupied, structure=np.ones((3, 3, 3), bool))
     border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
                                        labels[:, :, [0, -1]].ravel()]))
@@ -122,5 +208,5 @@ def voxelize(vertices: np.ndarray, faces: np.ndarray, resolution: int, seeds=())
         for axis in range(3):  # the closing box: the grid's outermost layer
             empty[(slice(None),) * axis + (0,)] = False
             empty[(slice(None),) * axis + (-1,)] = False
-    return occupied, empty, origin, pitch, closed_by_box, surface
+    return occupied, empty, origin, pitch, closed_by_box
 
