@@ -17,7 +17,8 @@ compares the `indirect` image with the matching Mitsuba reference (studies.vpl_n
 
     python -m studies.ladder_over_seeds --scenes sponza,lost_empire --methods val_clustered --seeds 6
 
-Prints one Markdown table; `--out` also writes it.
+`--param NAME=VALUE` (repeatable) sets a parameter on every rung. Prints one Markdown table; `--out`
+also writes it.
 """
 from __future__ import annotations
 
@@ -55,7 +56,25 @@ def step_figures(previous: np.ndarray, current: np.ndarray) -> dict:
     return {"ratio": ratio, "low": ratio - half, "high": ratio + half, "rise": bool(ratio - half > RISE_LIMIT)}
 
 
-def study(scenes, methods, seeds: int, width: int, height: int, spp: int, log=print) -> list[dict]:
+def parse_overrides(items) -> dict:
+    """`k=v` strings -> {k: v} (numbers as numbers), the same on every rung."""
+    out = {}
+    for item in items or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise SystemExit(f"--param {item!r}: expected NAME=VALUE")
+        for cast in (int, float):
+            try:
+                out[key] = cast(value)
+                break
+            except ValueError:
+                continue
+        else:
+            out[key] = {"true": True, "false": False}.get(value.lower(), value)
+    return out
+
+
+def study(scenes, methods, seeds: int, width: int, height: int, spp: int, log=print, overrides=None) -> list[dict]:
     if seeds < 2:
         raise ValueError(f"--seeds must be at least 2 for an interval over seeds, got {seeds}")
     ctx = create_context()
@@ -76,8 +95,8 @@ def study(scenes, methods, seeds: int, width: int, height: int, spp: int, log=pr
                     for rung, params in enumerate(cls.ladder or ({},)):
                         figures = []
                         for seed in range(seeds):
-                            res = run_method(ctx, cls, scene, view, width, height, dict(params), seed=seed, warmup=1,
-                                             frames=1, facts=facts, gpu=gpu,
+                            res = run_method(ctx, cls, scene, view, width, height, {**params, **(overrides or {})},
+                                             seed=seed, warmup=1, frames=1, facts=facts, gpu=gpu,
                                              shadow_resolution=auto_shadow_resolution(width, height))
                             figures.append(frame_figures(res.indirect, ref, mask))
                         errors = np.array([f["relmse"] for f in figures])
@@ -119,11 +138,12 @@ def main(argv=None) -> int:
     p.add_argument("--seeds", type=int, default=6)
     p.add_argument("--res", default="320x180")
     p.add_argument("--spp", type=int, default=512, help="reference spp cap (cached)")
+    p.add_argument("--param", action="append", help="NAME=VALUE on every rung (repeatable)")
     p.add_argument("--out", default=None)
     args = p.parse_args(argv)
     width, height = (int(v) for v in args.res.split("x"))
     rows = study(args.scenes.split(","), args.methods.split(","), args.seeds, width, height, args.spp,
-                 log=lambda m: print(m, file=sys.stderr, flush=True))
+                 log=lambda m: print(m, file=sys.stderr, flush=True), overrides=parse_overrides(args.param))
     table = markdown(rows)
     print(table)
     if args.out:

@@ -42,3 +42,11 @@ def test_markdown_marks_the_rise():
              "ci": 0.2, "mean_ratio": 1.0, "top20": 0.1, "step": step_figures(np.array([1.0, 1.1]), np.array([2.0, 2.2]))}]
     text = markdown(rows)
     assert text.count("**RISE**") == 1 and "2.000 [" in text.splitlines()[-1]
+
+
+def test_overrides_parse_numbers_and_words():
+    from studies.ladder_over_seeds import parse_overrides
+    assert parse_overrides(["split_clusters=8", "val_size_scale=0.5", "visibility=hard", "border_gates=true"]) == \
+        {"split_clusters": 8, "val_size_scale": 0.5, "visibility": "hard", "border_gates": True}
+    with pytest.raises(SystemExit, match="NAME=VALUE"):
+        parse_overrides(["split_clusters"])
