@@ -91,24 +91,35 @@ drop empty slot pixels before shading (10% of the splat). Figures: NOTES.md, "Th
 paper's text is not in the project's papers folder: the thin-face slots are our reading of its
 multi-resolution splatting's refinement, not a quoted step.
 
-(5) The contact's near field (issue #23), an option, off by default. With `exact_reach` k > 0 a
-receiver closer to a surfel's centre than k times the surfel's reach (its farthest corner from
-the centre) takes the exact transfer from the surfel's sub-triangle of uniform radiosity B: E =
-B F, F the form factor from the receiver to the part of the sub-triangle above its tangent plane
-(Lambert's contour integral over the clipped triangle, at most 4 corners; a receiver within tau
-= max(1e-4 sqrt(A), 1e-2 eps) of the emitter's plane gets nothing, so a surface never lights
-itself; where the surfel's shading side is not its geometric side, the point term). With the
-option on, the surfel record carries two corners for it (the third is 3y minus them; 112 bytes,
-80 without it, so the defaults' buffer and splat are unchanged). Why it exists: the point term's
-emitter cosine, taken at the centre, is ~0 for a receiver in or near the surfel's plane, but a
-receiver at height h beside a perpendicular lit surface gets F -> 1/2 of its radiosity as h ->
-0, almost all from within a few h of the contact: lost_empire's 20 worst pixels (a wall row
-under a lit ceiling whose 0.5 m^2 voxel triangles are one surfel each) read 0.026 where Mitsuba
-has 0.15, and 0.14-0.20 with k = 4. Why it is off: the exact transfer of a surfel's mean
-radiosity is only as good as that mean at the contact, and at the defaults' surfel size (sponza
-0.9 m^2, reach ~1.2 m) a contact in a shadowed corner then gets the mean of a partly lit surfel:
-sponza's relMSE 0.149 -> 0.244 with k = 4, lost_empire's 0.0104 -> 0.084 (one pixel at a concave
-voxel edge, 0.33 where Mitsuba has 0.006). Figures: NOTES.md, "Contact light".
+(5) The contact's near field (issue #23; on by default since 2026-12-03, `exact_reach` 1). A
+receiver closer to a surfel's centre than k = `exact_reach` times the surfel's reach (its farthest
+corner from the centre) takes the exact transfer from the surfel's sub-triangle: E = B F, F the form
+factor from the receiver to the part of the sub-triangle above its tangent plane (Lambert's contour
+integral over the clipped triangle, at most 4 corners; a receiver within tau = max(1e-4 sqrt(A),
+1e-2 eps) of the emitter's plane gets nothing, so a surface never lights itself; where the surfel's
+shading side is not its geometric side, the point term). Why: the point term's emitter cosine,
+taken at the centre, is ~0 for a receiver in or near the surfel's plane, but a receiver at height
+h beside a perpendicular lit surface gets F -> 1/2 of its radiosity as h -> 0, almost all from
+within a few h of the contact: lost_empire's 20 worst pixels (a wall row under a lit ceiling whose
+0.5 m^2 voxel triangles are one surfel each) read 0.026 where Mitsuba has 0.15.
+Two further steps make it faithful at the defaults' surfel size (sponza 0.9 m^2, reach ~1.2 m):
+(a) the contact's radiosity. B is not uniform over a surfel, and a contact sees the emitter
+within ~h of its closest point c on the sub-triangle (at height h over a plane, the share
+s^2 / (s^2 + h^2) of the form factor comes from within s of the foot). So the exact transfer
+takes B' = B_c w + B (1 - w), w = s^2 / (s^2 + h^2), h = |c - x|, s = `contact_scale` (0.5)
+times the reach, B_c = rho E evaluated by the shadow maps at the point a quarter of the way from
+c to the centre (inside the sub-triangle, off the edge where the adjacent surface's own
+shadow-map depth meets it: at c itself rooms/main's relMSE rose 7%): a contact in the shadow of
+a column's base gets the shadow's light, not the surfel's partly lit mean (with the mean alone,
+k = 4: sponza's relMSE 0.149 -> 0.244). (b) The near field is not interleaved: a surfel whose
+near-field sphere spans at least 4 pixels on the screen (NEAR_SPLIT_PIXELS) draws it in a
+second pass into every interleaved sub-buffer with weight 1 (the far field as before, hashed,
+weight M^2): a near field taken from one of M^2 sub-buffers with weight M^2 is the variance of a
+few large surfels on a few pixels (holodeck's top-20 share 0.285 -> 0.328 with it interleaved).
+A smaller near field keeps the point term in the hashed pass (llvmpipe pays per primitive: M^2
+quads per level for each of ~10^5 small surfels). The surfel record carries two corners and the
+albedo (112 bytes instead of 80). Cost: the splat about doubles (sponza 1.7 -> 3.9 s, conference
+5.3 -> 11 s at 320x180 on llvmpipe). Figures: NOTES.md, "Contact light at the defaults".
 
 With threshold 0, levels 1 and interleave 1 (and blur_radius 0) this is the exact sum over the
 surfels, which converges to the continuous one-bounce integral (and to jittered `manylights`,
@@ -131,7 +142,8 @@ Parameters:
 | eps_rel           | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps relative to the scene radius |
 | near_field        | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
 | near_field_scale  | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
-| exact_reach       | 0.0       | 0.0 .. 1000.0                  | a receiver closer to a surfel's centre than this many times its reach (farthest corner) takes the exact form factor of its sub-triangle instead of the point term (0: the point term everywhere) |
+| exact_reach       | 1.0       | 0.0 .. 1000.0                  | a receiver closer to a surfel's centre than this many times its reach (farthest corner) takes the exact form factor of its sub-triangle instead of the point term, in every interleaved sub-buffer with weight 1 (0: the point term everywhere) |
+| contact_scale     | 0.5       | 0.0 .. 100.0                   | with exact_reach > 0: the exact transfer takes the radiosity at the receiver's contact (the emitter's closest point, rho E there by the shadow maps) for the share s^2 / (s^2 + h^2) of it, h the distance to that point, s this times the surfel's reach, the surfel's mean for the rest (0: the mean alone) |
 | max_surfels       | 16000000  | 1 .. 100000000                 | skip a scene whose surfel count exceeds this |
 <!-- end of parameters -->
 
@@ -148,7 +160,7 @@ interleaved layout), `splat`, `unshuffle_blur` (unshuffle, blur, upsample, sum),
 shared `gbuffer_shadow` and `direct_light`. Needs: gbuffer, shadow_map, direct.
 
 Scale: every triangle gives at least one surfel, so a 10M-triangle scene needs a 10M-surfel
-buffer (80 B each, 800 MB; 112 B with `exact_reach`) beside its 1.1 GB triangle records;
+buffer (112 B each, 1.1 GB; 80 B with `exact_reach` 0) beside its 1.1 GB triangle records;
 `max_surfels` (16M) bounds that.
 These buffers exceed the GL_MAX_SHADER_STORAGE_BLOCK_SIZE llvmpipe reports (128 MB) but are bound
 whole; llvmpipe and desktop GPUs (2 GB and more) address them. The cost is linear in the surfel
@@ -179,7 +191,8 @@ from bench.protocol.method import FrameOutput, MethodBase, Param, SkipRow
 
 SHADERS = Path(__file__).parent / "shaders"
 DSS_DEFINES = {"BINDING_DSS_TRIANGLES": 3, "BINDING_DSS_PATCHES": 4, "BINDING_DSS_SURFELS": 5,
-               "BINDING_DSS_COUNTER": 6}
+               "BINDING_DSS_COUNTER": 6, "NEAR_SPLIT_PIXELS": 4.0,
+               "CONTACT_INSET": 0.25}
 MAX_TESS_LEVEL = 64               # GL_MAX_TESS_GEN_LEVEL guaranteed by GL 4.x
 TRIANGLES_PER_LEVEL_SQ = 1.5      # GL's triangle tessellation with all levels n makes ~1.5 n^2 triangles
 SURFEL_BYTES = {False: 80, True: 112}   # std430 Surfel (dss_common.glsl), without / with the corners of exact_reach
@@ -292,9 +305,14 @@ class DeepScreenSpace(MethodBase):
         "eps_rel": Param(1e-4, "distance clamp eps relative to the scene radius", 1e-7, 1.0),
         "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
-        "exact_reach": Param(0.0, "a receiver closer to a surfel's centre than this many times its reach (farthest "
-                             "corner) takes the exact form factor of its sub-triangle instead of the point term "
-                             "(0: the point term everywhere)", 0.0, 1000.0),
+        "exact_reach": Param(1.0, "a receiver closer to a surfel's centre than this many times its reach (farthest "
+                             "corner) takes the exact form factor of its sub-triangle instead of the point term, "
+                             "in every interleaved sub-buffer with weight 1 (0: the point term everywhere)",
+                             0.0, 1000.0),
+        "contact_scale": Param(0.5, "with exact_reach > 0: the exact transfer takes the radiosity at the receiver's "
+                               "contact (the emitter's closest point, rho E there by the shadow maps) for the share "
+                               "s^2 / (s^2 + h^2) of it, h the distance to that point, s this times the surfel's "
+                               "reach, the surfel's mean for the rest (0: the mean alone)", 0.0, 100.0),
         "max_surfels": Param(16_000_000, "skip a scene whose surfel count exceeds this", 1, 100_000_000),
     }
 
@@ -366,25 +384,31 @@ class DeepScreenSpace(MethodBase):
         self.target_area = target_area
 
         self.deinterleave = load_program(ctx, SHADERS / "deinterleave.glsl", defines)
-        self.splat = load_program(ctx, SHADERS / "splat.glsl",
-                                  dict(defines, **near_field_defines(params["near_field"], params["near_field_scale"])))
+        splat_defines = dict(defines, **near_field_defines(params["near_field"], params["near_field_scale"]))
+        self.splat = load_program(ctx, SHADERS / "splat.glsl", dict(splat_defines, NEAR_PASS=0))
+        # rule (5): the near field of every surfel in every interleaved sub-buffer, weight 1
+        self.splat_near = (load_program(ctx, SHADERS / "splat.glsl", dict(splat_defines, NEAR_PASS=1))
+                           if params["exact_reach"] > 0.0 else None)
         self.unshuffle = load_program(ctx, SHADERS / "unshuffle_blur.glsl", defines)
         self.compose = load_program(ctx, SHADERS / "compose.glsl", defines)
         self.deinterleave_vao = ctx.vertex_array(self.deinterleave, [])
         self.splat_vao = ctx.vertex_array(self.splat, [])
+        self.splat_near_vao = ctx.vertex_array(self.splat_near, []) if self.splat_near is not None else None
         self.unshuffle_vao = ctx.vertex_array(self.unshuffle, [])
         self.compose_vao = ctx.vertex_array(self.compose, [])
         fov = np.radians(view.camera.fov_y_deg)
         layout = dict(u_level_size=sizes, u_level_y=rows, u_pixel_k=float(2.0 * np.tan(fov / 2) / view.height),
                       u_shell_pixels=params["shell_pixels"], u_blur_normal_cos=params["blur_normal_cos"],
                       u_blur_plane_pixels=params["blur_plane_pixels"])
-        for prog in (self.deinterleave, self.splat, self.unshuffle, self.compose):
+        self.splats = (self.splat,) if self.splat_near is None else (self.splat, self.splat_near)
+        for prog in (self.deinterleave, self.unshuffle, self.compose) + self.splats:
             set_uniforms(prog, u_view=view.view, **layout)
-        set_uniforms(self.splat, u_proj=view.proj, u_near=float(view.near), u_screen=(view.width, view.height),
-                     u_atlas=tuple(float(v) for v in atlas), u_scene_radius=float(gpu.radius),
-                     u_radius_max=float(2.0 * gpu.radius * 1.01), u_threshold=params["threshold"],
-                     u_eps=float(params["eps_rel"] * gpu.radius), u_capacity=self.surfel_count,
-                     u_exact_reach=float(params["exact_reach"]))
+        for prog in self.splats:
+            set_uniforms(prog, u_proj=view.proj, u_near=float(view.near), u_screen=(view.width, view.height),
+                         u_atlas=tuple(float(v) for v in atlas), u_scene_radius=float(gpu.radius),
+                         u_radius_max=float(2.0 * gpu.radius * 1.01), u_threshold=params["threshold"],
+                         u_eps=float(params["eps_rel"] * gpu.radius), u_capacity=self.surfel_count,
+                         u_exact_reach=float(params["exact_reach"]), u_contact_scale=float(params["contact_scale"]))
         set_uniforms(self.unshuffle, u_blur_radius=params["blur_radius"])
         set_uniforms(self.compose, u_orient_radius=orient_radius(params["shell_pixels"]))
 
@@ -431,6 +455,13 @@ class DeepScreenSpace(MethodBase):
             self.surfels.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_SURFELS"])
             self.counter.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_COUNTER"])
             self.splat_vao.render_indirect(self.counter, mode=moderngl.POINTS, count=1)
+            if self.splat_near is not None:
+                gpu.bind_scene_buffers()
+                passes.shadows.bind(self.splat_near, 2)   # the contact radiosity's direct light
+                set_uniforms(self.splat_near, u_receiver_position=0, u_receiver_normal=1, u_light_count=gpu.light_count)
+                self.surfels.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_SURFELS"])
+                self.counter.bind_to_storage_buffer(DSS_DEFINES["BINDING_DSS_COUNTER"])
+                self.splat_near_vao.render_indirect(self.counter, mode=moderngl.POINTS, count=1)
             ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
         with prof.stage("unshuffle_blur"):
             self.levels_fbo.use()
@@ -459,7 +490,8 @@ class DeepScreenSpace(MethodBase):
         park(self.ctx)
         for name in ("receiver_fbo", "splat_fbo", "levels_fbo", "indirect_fbo", "receiver_mask", "receiver_position",
                      "receiver_normal", "splat_tex", "levels_tex", "indirect", "generate_vao", "deinterleave_vao",
-                     "splat_vao", "unshuffle_vao", "compose_vao", "generate", "deinterleave", "splat", "unshuffle",
+                     "splat_vao", "splat_near_vao", "unshuffle_vao", "compose_vao", "generate", "deinterleave", "splat",
+                     "splat_near", "unshuffle",
                      "compose", "surfels", "counter", "patches", "triangles"):
             obj = getattr(self, name, None)
             if obj is not None:

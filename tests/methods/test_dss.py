@@ -421,8 +421,9 @@ def test_default_near_field_bounds_surfels_beside_a_receiver(gl_ctx):
     1/d^2 is bounded at its own radius (bench/gl/near_field.py, as the VPL methods): no pixel above
     the point term's (near_field=clamp), the wall's base no longer its brightest spot, the image
     otherwise the same (sponza: 20-41% of the squared error in 20 pixels with the point term).
-    With exact_reach > 0 (off by default) surfels that close give the exact form factor of their
-    sub-triangle, bounded as well."""
+    With exact_reach > 0 (1 by default since 2026-12-03, so the point term's bound is checked with
+    exact_reach 0) surfels that close give the exact form factor of their sub-triangle, bounded as
+    well."""
     from bench.model.scene import Camera, DirectionalLight
     from tests.conftest import grid_quad, scene_from_parts
     parts = [grid_quad([-15, 0, -15], [0, 0, 30], [30, 0, 0], 1),          # floor, normal +y
@@ -431,8 +432,9 @@ def test_default_near_field_bounds_surfels_beside_a_receiver(gl_ctx):
                              [DirectionalLight([0.3, -1.0, -0.4], [3.0] * 3)],
                              {"main": Camera([0.0, 0.35, 1.2], [0.0, 0.1, 0.0], fov_y_deg=50)})
     assert DeepScreenSpace.params["near_field"].default == "footprint"
-    bounded = run_method(gl_ctx, DeepScreenSpace, scene, "main", 64, 48, {}, frames=1).indirect
-    point = run_method(gl_ctx, DeepScreenSpace, scene, "main", 64, 48, {"near_field": "clamp"}, frames=1).indirect
+    bounded = run_method(gl_ctx, DeepScreenSpace, scene, "main", 64, 48, {"exact_reach": 0.0}, frames=1).indirect
+    point = run_method(gl_ctx, DeepScreenSpace, scene, "main", 64, 48, {"near_field": "clamp", "exact_reach": 0.0},
+                       frames=1).indirect
     assert (bounded <= point * (1 + 1e-5) + 1e-9).all()
     assert bounded.max() < 0.9 * point.max()
     assert bounded.mean() > 0.98 * point.mean()

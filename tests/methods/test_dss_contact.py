@@ -4,8 +4,10 @@ its hemisphere), and almost all of it from the floor within a few heights of the
 point term of a surfel (cosines taken at its centre) sends nothing to a receiver in the
 surfel's plane, so a wall row lower than the floor's surfels are wide stays dark (lost_empire's
 20 worst pixels, a wall row under a lit ceiling, read 0.026 of Mitsuba's 0.15). With
-`exact_reach` > 0 (an option, off by default: manual rule (5)) the transfer within that many
-surfel reaches is the exact form factor of the surfel's sub-triangle."""
+`exact_reach` > 0 (1 by default since 2026-12-03: manual rule (5)) the transfer within that many
+surfel reaches is the exact form factor of the surfel's sub-triangle, drawn into every interleaved
+sub-buffer with weight 1, with the radiosity at the receiver's contact for the part of it from near
+the contact (`contact_scale`)."""
 import numpy as np
 import pytest
 
@@ -71,7 +73,7 @@ def test_exact_sum_over_surfels_matches_the_analytic_contact(gl_ctx):
     floor is one surfel of uniform radiosity: the exact transfer is exact here), the lowest row
     included; with the point term (exact_reach 0) the three lowest rows read 0.08, 0.19, 0.29."""
     scene = wall_on_lit_floor()
-    assert DeepScreenSpace.params["exact_reach"].default == 0.0
+    assert DeepScreenSpace.params["exact_reach"].default == 1.0
     for reach in (EXACT_REACH, 0.0):
         f = dss_frame(gl_ctx, scene, dict(EXACT_SUM, exact_reach=reach), W, H)
         wall, expected, rows = wall_pixels(f)
@@ -100,7 +102,7 @@ def wall_pixels(f):
     return wall, expected, rows
 
 
-@pytest.mark.parametrize("exact_reach", [EXACT_REACH, 0.0], ids=["exact_reach_4", "defaults_point_term"])
+@pytest.mark.parametrize("exact_reach", [EXACT_REACH, 0.0], ids=["exact_reach_4", "point_term"])
 def test_contact_rows_get_the_floors_light(gl_ctx, exact_reach):
     """With exact_reach 4 and the other parameters at their defaults the wall's three lowest rows
     match the exact one-bounce radiance of
@@ -108,9 +110,10 @@ def test_contact_rows_get_the_floors_light(gl_ctx, exact_reach):
     to one of 4 sub-buffers, weight 4: the lowest row's mean reads 0.92-1.31 by seed; measured
     mean over the seeds 1.15, 1.08, 1.01 from the lowest row up, the wall 1.004, relMSE 0.0035),
     and the whole wall too. The defaults' point term everywhere (exact_reach 0) leaves those rows
-    at 0.16, 0.24, 0.31 (wall 0.95, relMSE 0.12): the test's check that it can fail."""
+    at 0.16, 0.24, 0.31 (wall 0.95, relMSE 0.12): the test's check that it can fail. (Until
+    2026-12-03 the point term was the default; the near field is no longer interleaved.)"""
     scene = wall_on_lit_floor()
-    params = {"exact_reach": exact_reach} if exact_reach else {}
+    params = {"exact_reach": exact_reach}
     f = dss_frame(gl_ctx, scene, params, W, H)
     wall, expected, rows = wall_pixels(f)
     wall, expected, rows = wall[::-1], expected[::-1], [H - 1 - r for r in rows]   # images: top row first
@@ -123,5 +126,21 @@ def test_contact_rows_get_the_floors_light(gl_ctx, exact_reach):
         return
     assert all(abs(r - 1) < 0.25 for r in row_ratio), row_ratio
     assert abs(np.mean(row_ratio) - 1) < 0.15, row_ratio
+    assert abs(got[wall].mean() / expected[wall].mean() - 1) < 0.05
+    assert rel_mse(got, expected, wall) < 0.01
+
+
+def test_defaults_light_the_contact_rows(gl_ctx):
+    """At the defaults (exact_reach 1, near field in every sub-buffer, contact radiosity) one seed
+    gives the wall's three lowest rows the floor's light and the whole wall its exact radiance. The
+    code before (point term at the defaults) read 0.16, 0.24, 0.31 in those rows."""
+    scene = wall_on_lit_floor()
+    f = dss_frame(gl_ctx, scene, {}, W, H)
+    wall, expected, rows = wall_pixels(f)
+    wall, expected, rows = wall[::-1], expected[::-1], [H - 1 - r for r in rows]   # images: top row first
+    got = run_method(gl_ctx, DeepScreenSpace, scene, "main", W, H, {}, seed=0, frames=1).indirect[..., 0]
+    got = got.astype(np.float64)
+    row_ratio = [got[r][wall[r]].mean() / expected[r][wall[r]].mean() for r in rows]
+    assert all(abs(r - 1) < 0.15 for r in row_ratio), row_ratio
     assert abs(got[wall].mean() / expected[wall].mean() - 1) < 0.05
     assert rel_mse(got, expected, wall) < 0.01

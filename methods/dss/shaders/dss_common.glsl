@@ -10,10 +10,11 @@ struct Surfel {
     uint key;               // stable hash of (triangle key, sub-triangle): picks the interleaved sub-buffer
     vec4 radiosity_front;   // rgb rho E on the side +shading_normal, w luminance
     vec4 radiosity_back;    // rgb rho E on the side -shading_normal, w luminance
-    vec4 shading_normal;    // xyz unit shading normal at the centre: picks the side a receiver sees
+    vec4 shading_normal;    // xyz unit shading normal at the centre: picks the side a receiver sees;
+                            // w (with exact_reach > 0): the triangle's albedo, red
 #if EXACT_CONTACT
-    vec4 corner0;           // xyz: the sub-triangle's corner 0 minus the centre (corner 2 = -corner0 - corner1)
-    vec4 corner1;           // xyz: corner 1 minus the centre (both only with exact_reach > 0: 112 bytes, else 80)
+    vec4 corner0;           // xyz: the sub-triangle's corner 0 minus the centre (corner 2 = -corner0 - corner1); w albedo, green
+    vec4 corner1;           // xyz: corner 1 minus the centre (both only with exact_reach > 0: 112 bytes, else 80); w albedo, blue
 #endif
 };
 layout(std430, binding = BINDING_DSS_SURFELS) buffer SurfelBlock { Surfel surfels[]; };

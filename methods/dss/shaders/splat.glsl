@@ -17,9 +17,16 @@
 // sub-triangle above its tangent plane (q_i: the clipped polygon's corners relative to x). The
 // point term's cosine at the emitter, taken at the centre, vanishes for a receiver in (or near)
 // the emitter's plane, where most of the light at a right-angle contact comes from (a wall's
-// row under a lit ceiling: manual rule (5)).
+// row under a lit ceiling: manual rule (5)). That near field is drawn by a second pass (NEAR_PASS)
+// into every interleaved sub-buffer with weight 1 (for a surfel whose near-field sphere spans at
+// least NEAR_SPLIT_PIXELS pixels; a smaller one keeps the point term in the hashed pass), and its
+// radiosity leans towards rho E at the receiver's contact (the sub-triangle's closest point):
+// B' = mix(B, B_contact, s^2 / (s^2 + h^2)), s = u_contact_scale x the reach, h the distance to it.
 #include "common.glsl"
 #include "near_field.glsl"
+#if EXACT_CONTACT
+#include "direct_lighting.glsl"
+#endif
 #include "dss_common.glsl"
 uniform uint u_capacity;
 uniform mat4 u_view;
@@ -32,6 +39,7 @@ uniform float u_radius_max;     // no receiver is farther than the scene's diame
 uniform float u_threshold;      // relative contribution threshold (0: no cut)
 uniform float u_eps;            // distance clamp
 uniform float u_exact_reach;    // exact sub-triangle transfer within this many reaches of a surfel (0: never)
+uniform float u_contact_scale;  // s / reach: the contact radiosity's share of the exact transfer is s^2 / (s^2 + h^2)
 uniform uint u_rand;
 
 #if defined VERTEX_SHADER
@@ -40,7 +48,13 @@ void main() { v_index = gl_VertexID; }
 #endif
 
 #if defined GEOMETRY_SHADER
+#if NEAR_PASS
+// the near field (within the exact reach) of every surfel in every interleaved sub-buffer, weight 1:
+// invocation i draws class (i mod M, i / M)
+layout(points, invocations = INTERLEAVE * INTERLEAVE) in;
+#else
 layout(points) in;
+#endif
 layout(triangle_strip, max_vertices = 4 * SLOTS) out;
 flat in int v_index[];
 flat out vec4 g_position_area;
@@ -50,7 +64,9 @@ flat out vec3 g_front;
 flat out vec3 g_back;
 flat out vec3 g_corner0;        // the sub-triangle's corners 0 and 1 minus its centre
 flat out vec3 g_corner1;
-flat out float g_exact_dist;    // below this centre distance the transfer is the exact one
+flat out vec2 g_exact_dist;     // x: below this centre distance the near field (exact transfer), y: the reach
+flat out vec3 g_rho;            // the emitter's albedo (its contact radiosity is rho E at the contact)
+flat out int g_near_split;      // its near field is drawn by the near pass
 flat out int g_level;
 
 // Full-resolution pixel bounds (inclusive) of the sphere (view-space centre c, radius rho)
@@ -69,6 +85,30 @@ ivec4 screen_box(vec3 c, float rho) {
     ivec2 b = ivec2(min(floor(hi) + 1.0, u_screen - 1.0));
     return ivec4(a, b);
 }
+
+#if NEAR_PASS
+// Tight full-resolution pixel bounds of a sphere wholly in front of the camera (view-space centre
+// c, radius rho, -c.z - rho > near): per screen axis the two tangent directions at the centre's
+// angle +- asin(rho / |c|) in that axis' plane; else screen_box.
+ivec4 sphere_box(vec3 c, float rho) {
+    float depth = -c.z;
+    if (depth - rho <= u_near) return screen_box(c, rho);
+    vec2 lo, hi;
+    for (int k = 0; k < 2; ++k) {
+        float x = c[k];
+        float theta = atan(x, depth), alpha = asin(min(rho / sqrt(x * x + depth * depth), 1.0));
+        // ndc = P[k][k] x / depth - P[2][k] (P[2][k] 0 on symmetric frusta)
+        float t0 = tan(theta - alpha), t1 = tan(theta + alpha);
+        lo[k] = (u_proj[k][k] * t0 - u_proj[2][k]) * 0.5 + 0.5;
+        hi[k] = (u_proj[k][k] * t1 - u_proj[2][k]) * 0.5 + 0.5;
+    }
+    lo *= u_screen;
+    hi *= u_screen;
+    ivec2 a = ivec2(max(floor(lo) - 1.0, vec2(0.0)));
+    ivec2 b = ivec2(min(floor(hi) + 1.0, u_screen - 1.0));
+    return ivec4(a, b);
+}
+#endif
 
 void emit_corner(vec2 atlas_px) {
     gl_Position = vec4(atlas_px / u_atlas * 2.0 - 1.0, 0.0, 1.0);
@@ -96,11 +136,26 @@ void main() {
     g_corner1 = sf.corner1.xyz;
     float reach = sqrt(max(max(dot(g_corner0, g_corner0), dot(g_corner1, g_corner1)),
                            dot(g_corner0 + g_corner1, g_corner0 + g_corner1)));
-    g_exact_dist = u_exact_reach * reach;
+    g_exact_dist = vec2(u_exact_reach * reach, reach);
+    g_rho = vec3(sf.shading_normal.w, sf.corner0.w, sf.corner1.w);
 #else
     g_corner0 = vec3(0.0);
     g_corner1 = vec3(0.0);
-    g_exact_dist = 0.0;
+    g_exact_dist = vec2(0.0);
+    g_rho = vec3(0.0);
+#endif
+    // the near field goes to every sub-buffer (near pass, weight 1) when its sphere spans at least
+    // NEAR_SPLIT_PIXELS pixels on the screen (or reaches the near plane), else the point term in
+    // the surfel's hashed sub-buffer as the far field (weight M^2): a near field of a few pixels is
+    // a few pixels' contact light, and llvmpipe pays per primitive (M^2 quads per level)
+    g_near_split = int(g_exact_dist.x > 0.0 && (depth - g_exact_dist.x <= u_near ||
+                                            g_exact_dist.x >= NEAR_SPLIT_PIXELS * u_pixel_k * depth));
+#if NEAR_PASS
+    if (g_near_split == 0) return;
+    r = min(r, g_exact_dist.x);   // the near pass draws the near field's sphere only
+    // none (or wholly in front of the near plane, where no receiver is: screen_box would give
+    // the whole screen for a sphere behind the camera)
+    if (!(r > 0.0) || depth + r <= u_near) return;
 #endif
     for (int l = 0; l < LEVELS; ++l) {
         float b = exp2(float(l)) * u_shell_pixels * u_pixel_k;   // inner shell edge / receiver depth
@@ -118,13 +173,21 @@ void main() {
                 outer = min(r, a * depth / (1.0 - a) * (1.0 + 1e-3));
             }
         }
+#if NEAR_PASS
+        ivec4 box = sphere_box(c, outer);
+#else
         ivec4 box = screen_box(c, outer);
+#endif
         if (box.x > box.z || box.y > box.w) continue;
         ivec4 size = u_level_size[l];
         // receivers of level pixel X lie in [X 2^l, (X + 1) 2^l) or on the clamped last node
         ivec2 X0 = box.xy >> l, X1 = min((box.zw + (1 << l) - 1) >> l, size.xy - 1);
+#if NEAR_PASS
+        ivec2 cls = ivec2(gl_InvocationID % INTERLEAVE, gl_InvocationID / INTERLEAVE);
+#else
         uint h = hash_u32(sf.key ^ hash_u32(u_rand + uint(l) * 0x9E3779B9u));
         ivec2 cls = ivec2(int(h % uint(INTERLEAVE)), int((h / uint(INTERLEAVE)) % uint(INTERLEAVE)));
+#endif
         if (X1.x < cls.x || X1.y < cls.y) continue;
         ivec2 u0 = (max(X0 - cls, ivec2(0)) + (INTERLEAVE - 1)) / INTERLEAVE;
         ivec2 u1 = min((X1 - cls) / INTERLEAVE, size.zw - 1);
@@ -156,7 +219,9 @@ flat in vec3 g_front;
 flat in vec3 g_back;
 flat in vec3 g_corner0;
 flat in vec3 g_corner1;
-flat in float g_exact_dist;
+flat in vec2 g_exact_dist;
+flat in vec3 g_rho;
+flat in int g_near_split;
 flat in int g_level;
 layout(location = 0) out vec4 out_irradiance;
 
@@ -184,6 +249,27 @@ float triangle_form_factor(vec3 q0, vec3 q1, vec3 q2, vec3 nx, float tau) {
     return min(abs(sum) * (0.5 * INV_PI), 1.0);
 }
 
+// Closest point of the triangle a b c to p (Ericson, Real-Time Collision Detection, 5.1.5).
+vec3 closest_on_triangle(vec3 p, vec3 a, vec3 b, vec3 c) {
+    vec3 ab = b - a, ac = c - a, ap = p - a;
+    float d1 = dot(ab, ap), d2 = dot(ac, ap);
+    if (d1 <= 0.0 && d2 <= 0.0) return a;
+    vec3 bp = p - b;
+    float d3 = dot(ab, bp), d4 = dot(ac, bp);
+    if (d3 >= 0.0 && d4 <= d3) return b;
+    float vc = d1 * d4 - d3 * d2;
+    if (vc <= 0.0 && d1 >= 0.0 && d3 <= 0.0) return a + ab * (d1 / (d1 - d3));
+    vec3 cp = p - c;
+    float d5 = dot(ab, cp), d6 = dot(ac, cp);
+    if (d6 >= 0.0 && d5 <= d6) return c;
+    float vb = d5 * d2 - d1 * d6;
+    if (vb <= 0.0 && d2 >= 0.0 && d6 <= 0.0) return a + ac * (d2 / (d2 - d6));
+    float va = d3 * d6 - d5 * d4;
+    if (va <= 0.0 && d4 - d3 >= 0.0 && d5 - d6 >= 0.0) return b + (c - b) * ((d4 - d3) / ((d4 - d3) + (d5 - d6)));
+    float inv = 1.0 / (va + vb + vc);
+    return a + ab * (vb * inv) + ac * (vc * inv);
+}
+
 void main() {
     ivec2 a = ivec2(gl_FragCoord.xy);
     vec4 xp = texelFetch(u_receiver_position, a, 0);   // w: view depth, 0 if no receiver
@@ -194,22 +280,53 @@ void main() {
     if (shell_level(dist, xp.w) != g_level) discard;
     vec3 w = d / dist;
     float cos_y = dot(g_normal_radius.xyz, w);
-    vec3 radiosity = dot(g_shading_normal, w) < 0.0 ? g_front : g_back;   // the side the receiver is on
+    bool front = dot(g_shading_normal, w) < 0.0;   // the receiver is on the side of the shading normal
+    vec3 radiosity = front ? g_front : g_back;   // the side the receiver is on
     if (all(equal(radiosity, vec3(0.0)))) discard;
     vec3 nx = texelFetch(u_receiver_normal, a, 0).xyz;
-    float weight = float(INTERLEAVE * INTERLEAVE);
     float transfer;
+#if EXACT_CONTACT
+    // the near field (dist < reach k) in every sub-buffer with weight 1 (NEAR_PASS), the rest in
+    // the surfel's hashed sub-buffer with weight M^2
+    bool near = dist < g_exact_dist.x;
+#if NEAR_PASS
+    if (!near) discard;
+    float weight = 1.0;
+#else
+    if (near && g_near_split != 0) discard;
+    float weight = float(INTERLEAVE * INTERLEAVE);
+#endif
+#else
+    float weight = float(INTERLEAVE * INTERLEAVE);
+#endif
     // exact near the surfel where its shading side is its geometric side (always on flat-shaded
     // faces; a receiver beside a smooth-shaded edge may see a side's radiosity from behind its
     // plane, where the exact transfer would let the lit side's light through: point term there)
-#if EXACT_CONTACT
-    if (dist < g_exact_dist && (dot(g_shading_normal, w) < 0.0) == (cos_y < 0.0)) {
+#if NEAR_PASS
+    if ((dot(g_shading_normal, w) < 0.0) == (cos_y < 0.0)) {
         // a receiver within tau of the emitter's plane gets nothing (the point term's cos_y = 0;
         // tau absorbs float32 noise so a surface never lights itself)
         float tau = max(1e-4 * sqrt(g_position_area.w), 1e-2 * u_eps);
         if (abs(dot(g_normal_radius.xyz, d)) <= tau) discard;
         transfer = triangle_form_factor(d + g_corner0, d + g_corner1, d - g_corner0 - g_corner1, nx, tau);
         if (!(transfer > 0.0)) discard;
+        if (u_contact_scale > 0.0) {
+            // the part of the transfer from near the contact (the sub-triangle's point c closest to
+            // the receiver, at distance h) takes the radiosity there, rho E(c) (shadow maps), the
+            // rest the surfel's mean: a receiver at h from a plane gets the share s^2 / (s^2 + h^2) of
+            // its form factor from within s of its foot, s = contact_scale x the reach
+            vec3 y = g_position_area.xyz;
+            vec3 c = closest_on_triangle(xp.xyz, y + g_corner0, y + g_corner1, y - g_corner0 - g_corner1);
+            vec3 hv = c - xp.xyz;
+            float s2 = u_contact_scale * g_exact_dist.y;
+            s2 *= s2;
+            float share = s2 / (s2 + dot(hv, hv));
+            vec3 ns = front ? g_shading_normal : -g_shading_normal;
+            // the direct light a quarter of the way from c to the centre: inside the sub-triangle,
+            // off the edge where the adjacent surface's own shadow-map depth meets it
+            vec3 contact = g_rho * direct_irradiance(mix(c, y, CONTACT_INSET), ns, g_normal_radius.xyz, true);
+            radiosity = mix(radiosity, contact, share);
+        }
         transfer *= weight;
     } else
 #endif

@@ -179,8 +179,9 @@ void main() {
     uint key = hash_u32(triangle_key * 2654435761u ^ hash_u32(dss_patches[e_patch[0]].z ^
                         hash_u32(floatBitsToUint(cc.x) ^ hash_u32(floatBitsToUint(cc.y)))));
 #if EXACT_CONTACT
-    surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, 0.0),
-                            vec4(e_position[0] - y, 0.0), vec4(e_position[1] - y, 0.0));
+    // the albedo in the spare w's: the splat's contact radiosity (rule (5)) is rho E at the contact
+    surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, rho.r),
+                            vec4(e_position[0] - y, rho.g), vec4(e_position[1] - y, rho.b));
 #else
     surfels[index] = Surfel(vec4(y, area), n, key, vec4(front, lf), vec4(back, lb), vec4(ns, 0.0));
 #endif
