@@ -83,6 +83,21 @@ def test_fit_recovers_a_known_linear_cost():
     assert all(v >= 0 for v in fitted.coef.values()) and fitted.const >= 0
 
 
+def test_fit_predicts_the_total_of_rows_whose_cost_per_unit_varies():
+    """A budget spends totals. Many cheap rows of small scenes and a few heavy rows of real ones,
+    whose cost per unit is higher (view-dependent work no term sees, as dss's near fields on sponza):
+    the fit predicts the rows' total, and the heavy rows' own total within 30%. (Fitted on relative
+    error and rescaled to the median row, it predicted the default run's dss rows at 0.3x.)"""
+    rng = np.random.default_rng(5)
+    cheap = [{"surfels": float(u)} for u in rng.integers(2_000, 12_000, 40)]
+    heavy = [{"surfels": float(u)} for u in rng.integers(60_000, 400_000, 6)]
+    y = [1e-5 * r["surfels"] * rng.uniform(0.5, 2.0) for r in cheap] + \
+        [4e-5 * r["surfels"] * rng.uniform(0.8, 1.25) for r in heavy]
+    fitted = cost.fit_linear(cheap + heavy, y)
+    assert sum(fitted(r) for r in cheap + heavy) == pytest.approx(sum(y), rel=1e-6)
+    assert sum(fitted(r) for r in heavy) == pytest.approx(sum(y[len(cheap):]), rel=0.3)
+
+
 def test_model_round_trips_through_json():
     model = cost.CostModel.prior()
     again = cost.CostModel.from_json(json.loads(json.dumps(model.to_json())))
@@ -453,5 +468,5 @@ def test_mitsubas_start_is_counted_once_per_run():
     cached = budget.RunPlan(rows=rows, views={k: dict(v, references=0.0) for k, v in views.items()}, setup_s=0.0,
                             reference_start_s=20.0)
     assert cached.phases()["references"] == 0.0          # every reference stored: Mitsuba does not start
-    fitted = cost.CostModel.prior()
-    assert fitted.reference_start_s > 0 and fitted.reference_scale > 0
+    fitted = cost.CostModel.prior()   # the refit of 2026-12-03 puts the start at 0 (absorbed by the scale)
+    assert fitted.reference_start_s >= 0 and fitted.reference_scale > 0
