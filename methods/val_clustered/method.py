@@ -58,17 +58,20 @@ clustering.py, stage 3 shadow_maps.py):
 5. `gather`: the sum above with interleaved sampling in `interleave` x `interleave` blocks
    (the paper: 8 x 8 blocks, 1024 VPLs -> 16 VPLs per pixel).
 6. `blur`: geometry-aware blur over the block (alpha = 10% of the scene extent, beta = 0.8,
-   Laine et al. 2007); skipped when `interleave` = 1.
+   Laine et al. 2007), its visible share taken over the pixels on this pixel's side of a contact
+   shadow's edge (`blur_visibility_diff`, below); skipped when `interleave` = 1.
 
 Defaults (issue #23): the paper's operating point (30 VALs of 1024 VPLs, parabolic CSSM) with
-five readings recorded below: the contact test (`contact_test=plane`), the map origin at the
+six readings recorded below: the contact test (`contact_test=plane`), the map origin at the
 cluster's medoid VPL with nothing ignored (`val_origin=medoid`, `near_ignore=0`), the CSSM kernel matched to a box of the paper's width
-(`cssm_kernel=box`), 8 Fourier terms, and the interleaved-sampling block scaled to the image
-width (`interleave=0`: 3 x 3 at 320 x 180). The paper's own setting, which lets light through
+(`cssm_kernel=box`), 8 Fourier terms, the interleaved-sampling block scaled to the image
+width (`interleave=0`: 3 x 3 at 320 x 180), and the blur's visible share taken over the pixels
+on this pixel's side of a contact shadow's edge (`blur_visibility_diff=0.3`). The paper's own setting, which lets light through
 walls on large scenes (a VAL's visibility is its mean's, geometry within 0.5 lambda of it is
 ignored, its soft-shadow kernel is wider than the paper's, the 4-term step ramps over metres and
 contact blockers within that ramp are missed):
-`val_origin=centre near_ignore=0.5 cssm_kernel=lod fourier_terms=4 interleave=8 contact_test=off`.
+`val_origin=centre near_ignore=0.5 cssm_kernel=lod fourier_terms=4 interleave=8 contact_test=off
+blur_visibility_diff=1`.
 At 320 x 180,
 1 frame, seed 0, relMSE of `indirect` against the visible one-bounce reference (image mean /
 reference), paper setting -> defaults without the contact test (`contact_test=off`): sponza 1.13 (1.10) -> 0.61 (0.92), lost_empire 2.39
@@ -86,6 +89,12 @@ off -> plane: sponza 0.610 (0.918) -> 0.590 (0.911), sibenik 0.207 (1.053) -> 0.
 conference 0.130 (0.974) -> 0.101 (0.943), cornell_box 0.0229 (0.954) -> 0.0230 (0.953),
 lost_empire 0.300 (0.900) -> 0.232 (0.879), holodeck 0.136 (1.007) -> 0.096 (0.989), rooms/main
 1.23 -> 0.21; the procedural scenes within 3% or better (hidden_bounce +2.4%, big_floor -35%).
+Then (2026-12-03) the contact test read over the VAL's spot on the blocker and the blur's
+visible share (both below): sponza 0.590 -> 0.581 (0.910), sibenik 0.132 -> 0.111 (1.039),
+conference 0.101 -> 0.080 (0.940), cornell_box 0.0230 -> 0.0226 (0.953), lost_empire 0.232 ->
+0.175 (0.861), holodeck 0.096 -> 0.027 (0.979; its 20 worst pixels 0.47 -> 0.27 of the squared
+error); at 160 x 120 (128 spp) rooms/main 0.230 -> 0.214, big_floor -14%, the other procedural
+scenes unchanged.
 rooms/far (0.89 -> 0.87, direct 0.59) is not a map leak:
 VAL 20 spans the wall between rooms 1 and 2 (7 of its 21 VPLs in room 2) and its origin sits 3
 cm from that wall, so the blocker search finds z_avg -> 0 and the penumbra estimate widens the
@@ -141,13 +150,27 @@ Corrections and choices relative to the paper's text (recorded here as the house
   map texel of concave corners: cornell_box +5%, hidden_bounce +40% relMSE, lost_empire's mean
   0.90 -> 0.83); a receiver under a lip or behind a wall lies beyond every candidate (beside a
   crease a candidate is the chord across it, which the requirement on every candidate covers).
-  A separating texel blocks with its bilinear weight times the share of the VAL it can cover:
-  the VAL (size lambda) seen from x through the blocker delta = d - stored in front of the lifted
-  receiver (distance d) spans lambda delta / d there, the texel one texel footprint t at x, so
-  the weight is b = w min(1, t d / (lambda delta)) (1 for a point VAL or a blocker within the
-  hard-shadow limit; lost_empire's VALs of 7-36 m behind its 1 m blocks: the rest is left to the
-  CSSM, which gave its mean 0.83 -> 0.88), and V = V_cssm (1 - b) (`visibility=hard`: band = the
-  test's one-texel bias, lambda = 0, blocked when b >= 1/2). Found on holodeck (a lip 9 mm over
+  The separating texels block the share of the VAL they hide from x, read over the VAL's spot on
+  them: the VAL (size lambda) seen from x through a blocker delta = d - stored in front of the
+  lifted receiver (distance d) spans lambda delta / d there, i.e. W = lambda delta / (d stored a)
+  map texels (a the texel's angle; W a is the paper's penumbra angle alpha = lambda (d - z) / (z d)
+  at z = stored), a square centred on the receiver's direction. A texel k blocking at its own
+  delta_k hides the part of its spot its cell covers, overlap(cell_k, spot_k) / W_k^2 of the VAL:
+  b = sum_k overlap(cell_k, spot_k) / W_k^2, W_k at least one texel (then the bilinear weights of
+  the 2 x 2 footprint: a point VAL or a blocker within the hard-shadow limit); a blocker as wide
+  as the spot hides the whole VAL however large. The test runs where one of the bilinear 2 x 2
+  texels blocks, over the window of the widest of their spots (at most CONTACT_SPOT_TEXELS = 8
+  texels: a wider spot is counted inside it only, the rest left to the CSSM), and
+  V = V_cssm (1 - b) (`visibility=hard`: band = the test's one-texel bias, lambda = 0, blocked
+  when b >= 1/2). The rule before (2026-12-02) weighed a separating texel w min(1, t d /
+  (lambda delta)) (w its bilinear weight, t the texel footprint at x), as if every blocker were
+  one texel wide: on holodeck the ceiling VALs' maps see the top of the door panel's lip 4-6 cm in
+  front of the receivers under it, their spots 4-7 texels wide and lip but for one edge column,
+  so each VAL was blocked 0.2-0.8 (b now 0.6-0.8; lost_empire's VALs of 7-36 m behind its 1 m
+  blocks: relMSE 0.232 -> 0.176, mean 0.879 -> 0.861). A spot reaching past the blocker's edge
+  in the map still lets part of the VAL through where a solid blocker (a lip 4 cm thick, whose
+  front face and underside the map does not show) hides it all: holodeck's slot reads 0.03-0.08
+  without interleaving where Mitsuba has 0.01 (0.08-0.15 before; NOTES.md). Found on holodeck (a lip 9 mm over
   a slot in a door panel hid the ceiling: Mitsuba 0.03, the method 0.6-1.0) and rooms (a
   zero-thickness wall 5-10 mm in front of receivers along its junctions). Tried and dropped:
   keeping only texels on the VAL's side of the receiver, counting a texel as fully blocking,
@@ -158,7 +181,8 @@ Corrections and choices relative to the paper's text (recorded here as the house
   bilinear footprint still lets light through there.
   Cost: the `val_visibility` stage x1.56 on llvmpipe (holodeck at 320 x 180: 384 -> 600 ms,
   frame 818 -> 986 ms; the neighbours are fetched lazily and the first candidate plane with o
-  and x on one side ends the test; NOTES.md).
+  and x on one side ends the test; NOTES.md). The spot window (2026-12-03) is not timed here: it
+  is read only where a 2 x 2 texel blocks with a spot wider than one texel.
 - Clustering distance: the paper's d = w_x dx + w_a da adds metres to radians, so the weights
   would depend on the scene's unit; dx is divided by the scene radius R here.
 - Initial centres: "the VPL at index k-N/n" is k * N / M (VAL k of M).
@@ -233,37 +257,55 @@ Corrections and choices relative to the paper's text (recorded here as the house
   the N VPLs themselves, as the paper does.
 - The blur averages the unweighted gather (without receiver albedo), the albedo is applied
   after it, so that albedo edges stay sharp.
+- Blur's visible share (`blur_visibility_diff` = 0.3; 1 is the paper's blur): the blur averages
+  the B x B window's gathered sums, each over its own VPL subset, and with them their visibility:
+  a pixel of a contact shadow next to a lit face with its normal a few centimetres in front of it
+  (holodeck: the door's slot under the lip, the lip's front face one pixel row above, both well
+  inside the paper's alpha = 10% of the scene extent) took half the face's light (the slot 0.27-0.29
+  where Mitsuba has 0.01, after the contact test's spot rule above: 20 worst pixels 0.44 of the
+  squared error). The unshadowed light is smooth across such an edge, the visible share is not.
+  So the gather also writes the luminance of each pixel's sum without visibility (alpha) and the
+  blur keeps the window's mean (over all B^2 subsets) but replaces its visible share (the window's
+  shadowed over unshadowed luminance) by that over the pixels whose VAL-level visible share
+  s = sum_j U_j V_j / sum_j U_j (U_j = lum(Phi_j) cos cos / max(d^2, lambda_j^2 / pi), VAL j as
+  one area light at its centre; written by `val_visibility`, free of the subsets' noise) is not
+  above this pixel's by more than 0.3, nor below it by more than 0.3 across a step (the neighbour
+  off this pixel's tangent plane by a sine over BLUR_STEP_SINE = 0.5). A much darker neighbour on
+  the same plane is kept, as in the paper's blur: there it is as often this pixel's own leak being
+  diluted (rooms' wall junctions, the contact test's remaining misses) as a shadow edge. Where no
+  test fires the result is the paper's blur exactly (the variants tried and dropped: NOTES.md).
 
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
-| parameter          | default    | range                          | meaning |
-|--------------------|------------|--------------------------------|---|
-| vpl_count          | 1024       | 1 .. 8192                      | VPLs drawn from the RSM per frame, as vpl_sampling says (paper: 1024) |
-| vpl_sampling       | importance | importance, halton             | VPL pattern: the shared RSM importance sampler (the IR baselines' VPLs) or the paper's Halton point sampling of the RSM |
-| cluster_count      | 30         | 1 .. 256                       | virtual area lights M (k-means clusters of the VPLs; paper: 30) (quality knob; sweep 5, 10, 20, 30, 60) |
-| kmeans_iterations  | 8          | 0 .. 64                        | k-means iterations per frame (0: the initial centres only) |
-| weight_position    | 0.7        | 0.0 .. 10.0                    | w_x: clustering weight of the position difference (per scene radius) |
-| weight_angle       | 0.3        | 0.0 .. 10.0                    | w_a: clustering weight of the normal angle (per radian) |
-| visibility         | cssm       | cssm, hard                     | per-VAL visibility: soft (parabolic CSSM) or one hard shadow test |
-| shadow_resolution  | 128        | 16 .. 1024                     | paraboloid shadow map resolution per VAL (texels, a power of two; paper: 256) (quality knob; sweep 64, 128, 256) |
-| fourier_terms      | 8          | 4, 8                           | Fourier terms of the convolution shadow maps (paper: 4) |
-| csm_sharpening     | 3.0        | 2.0 .. 16.0                    | slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) (2: Annen et al.'s plain scaling) |
-| split_clusters     | 0          | 0 .. 256                       | spare VALs S for the split round: the VPLs their VAL's map origin does not see are clustered again into up to S more VALs with maps of their own (0: the paper's clustering alone) |
-| split_mode         | reassign   | reassign, recluster            | a VPL its VAL's origin does not see: to the nearest VAL whose origin sees it, else to the split round (reassign), or straight to the split round (recluster) |
-| val_size_scale     | 1.0        | 0.01 .. 4.0                    | VAL size lambda as a fraction of the side of the square of its VPLs' bounding rectangle's area (the paper's: 1) |
-| cssm_kernel        | box        | box, lod                       | CSSM kernel of width w texels as a trilinear MIP lookup: at level log2(w / sqrt(3)), whose variance is the box's (box), or at log2(w) (lod) |
-| val_origin         | medoid     | medoid, centre                 | origin of a VAL's map: the cluster's mean position (centre, the paper's) or its VPL nearest that mean (medoid) |
-| behind_plane       | visible    | horizon, visible               | visibility of a receiver behind a VAL's plane, outside its map: the paper's full visibility (visible) or the map's horizon in its direction (horizon) |
-| near_ignore        | 0.0        | 0.0 .. 4.0                     | ignore geometry closer to a VAL's map origin than this times the VAL size (paper: 0.5, with the origin at the cluster's centre) |
-| contact_test       | plane      | off, plane                     | blockers the shadow test cannot resolve (within the CSM step's ramp, or the hard test's one-texel bias, in front of the receiver): tested exactly against the receiver's own plane along each texel's direction, counted where the blocker's plane separates the map origin from the receiver (plane), or not (off, the paper's) |
-| normal_offset      | 0.5        | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VAL shadow test, in map texel footprints at the receiver |
-| interleave         | 0          | 0 .. 16                        | interleaved sampling block size B (B x B pixels share the VPLs; 1: off, no blur; 0: the paper's 8 x 8 blocks of an 800-pixel-wide image scaled to the image width, max(1, round(8 width / 800))) |
-| blur_distance_rel  | 0.1        | 0.0 .. 10.0                    | geometry-aware blur alpha: max position difference / scene extent (2R) |
-| blur_normal_dot    | 0.8        | -1.0 .. 1.0                    | geometry-aware blur beta: min dot product of the normals |
-| clamp_distance_rel | 0.0001     | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
-| near_field         | footprint  | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
-| near_field_scale   | 1.0        | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
+| parameter            | default    | range                          | meaning |
+|----------------------|------------|--------------------------------|---|
+| vpl_count            | 1024       | 1 .. 8192                      | VPLs drawn from the RSM per frame, as vpl_sampling says (paper: 1024) |
+| vpl_sampling         | importance | importance, halton             | VPL pattern: the shared RSM importance sampler (the IR baselines' VPLs) or the paper's Halton point sampling of the RSM |
+| cluster_count        | 30         | 1 .. 256                       | virtual area lights M (k-means clusters of the VPLs; paper: 30) (quality knob; sweep 5, 10, 20, 30, 60) |
+| kmeans_iterations    | 8          | 0 .. 64                        | k-means iterations per frame (0: the initial centres only) |
+| weight_position      | 0.7        | 0.0 .. 10.0                    | w_x: clustering weight of the position difference (per scene radius) |
+| weight_angle         | 0.3        | 0.0 .. 10.0                    | w_a: clustering weight of the normal angle (per radian) |
+| visibility           | cssm       | cssm, hard                     | per-VAL visibility: soft (parabolic CSSM) or one hard shadow test |
+| shadow_resolution    | 128        | 16 .. 1024                     | paraboloid shadow map resolution per VAL (texels, a power of two; paper: 256) (quality knob; sweep 64, 128, 256) |
+| fourier_terms        | 8          | 4, 8                           | Fourier terms of the convolution shadow maps (paper: 4) |
+| csm_sharpening       | 3.0        | 2.0 .. 16.0                    | slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) (2: Annen et al.'s plain scaling) |
+| split_clusters       | 0          | 0 .. 256                       | spare VALs S for the split round: the VPLs their VAL's map origin does not see are clustered again into up to S more VALs with maps of their own (0: the paper's clustering alone) |
+| split_mode           | reassign   | reassign, recluster            | a VPL its VAL's origin does not see: to the nearest VAL whose origin sees it, else to the split round (reassign), or straight to the split round (recluster) |
+| val_size_scale       | 1.0        | 0.01 .. 4.0                    | VAL size lambda as a fraction of the side of the square of its VPLs' bounding rectangle's area (the paper's: 1) |
+| cssm_kernel          | box        | box, lod                       | CSSM kernel of width w texels as a trilinear MIP lookup: at level log2(w / sqrt(3)), whose variance is the box's (box), or at log2(w) (lod) |
+| val_origin           | medoid     | medoid, centre                 | origin of a VAL's map: the cluster's mean position (centre, the paper's) or its VPL nearest that mean (medoid) |
+| behind_plane         | visible    | horizon, visible               | visibility of a receiver behind a VAL's plane, outside its map: the paper's full visibility (visible) or the map's horizon in its direction (horizon) |
+| near_ignore          | 0.0        | 0.0 .. 4.0                     | ignore geometry closer to a VAL's map origin than this times the VAL size (paper: 0.5, with the origin at the cluster's centre) |
+| contact_test         | plane      | off, plane                     | blockers the shadow test cannot resolve (within the CSM step's ramp, or the hard test's one-texel bias, in front of the receiver): tested exactly against the receiver's own plane along each texel's direction, counted where the blocker's plane separates the map origin from the receiver (plane), or not (off, the paper's) |
+| normal_offset        | 0.5        | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VAL shadow test, in map texel footprints at the receiver |
+| interleave           | 0          | 0 .. 16                        | interleaved sampling block size B (B x B pixels share the VPLs; 1: off, no blur; 0: the paper's 8 x 8 blocks of an 800-pixel-wide image scaled to the image width, max(1, round(8 width / 800))) |
+| blur_distance_rel    | 0.1        | 0.0 .. 10.0                    | geometry-aware blur alpha: max position difference / scene extent (2R) |
+| blur_normal_dot      | 0.8        | -1.0 .. 1.0                    | geometry-aware blur beta: min dot product of the normals |
+| blur_visibility_diff | 0.3        | 0.0 .. 1.0                     | geometry-aware blur: the window's visible share (shadowed over unshadowed gathered light) is taken over the pixels whose VAL-level visible share is not above this pixel's by more than this, nor below it by more across a step of the surface (1: the paper's blur) |
+| clamp_distance_rel   | 0.0001     | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
+| near_field           | footprint  | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
+| near_field_scale     | 1.0        | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
 <!-- end of parameters -->
 
 Quality ladder (fast -> accurate; `ladder`): {cluster_count 10, shadow_resolution 64},
@@ -318,6 +360,8 @@ PAPER_BLOCK, PAPER_WIDTH = 8, 800          # interleaved sampling: 8 x 8 blocks 
 KERNEL_SCALES = {"box": 1.0 / math.sqrt(3.0), "lod": 1.0}
 CONTACT_TOLERANCE = 1e-3             # contact test: a stored distance within this fraction of the receiver plane's is that plane
 CONTACT_COPLANAR = 0.05              # contact test: a neighbour texel off p0's surface by more than this fraction of the distance
+CONTACT_SPOT_TEXELS = 8              # contact test: the widest window (map texels) read for a VAL's spot on a blocker
+BLUR_STEP_SINE = 0.5                 # blur: a neighbour off the pixel's tangent plane by more than this sine is across a step
 
 
 def csm_step_band(terms: int, sharpening: float) -> float:
@@ -388,6 +432,11 @@ class ClusteredVirtualAreaLights(MethodBase):
         "blur_distance_rel": Param(0.1, "geometry-aware blur alpha: max position difference / scene extent "
                                         "(2R)", 0.0, 10.0),
         "blur_normal_dot": Param(0.8, "geometry-aware blur beta: min dot product of the normals", -1.0, 1.0),
+        "blur_visibility_diff": Param(0.3, "geometry-aware blur: the window's visible share (shadowed over "
+                                           "unshadowed gathered light) is taken over the pixels whose VAL-level "
+                                           "visible share is not above this pixel's by more than this, nor below "
+                                           "it by more across a step of the surface (1: the paper's blur)",
+                                           0.0, 1.0),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
         "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
@@ -445,10 +494,13 @@ class ClusteredVirtualAreaLights(MethodBase):
         defines = dict(self.maps.defines, VISIBILITY_CSSM=int(cssm), BEHIND_HORIZON=int(params["behind_plane"] == "horizon"),
                        CONTACT_TEST=int(params["contact_test"] == "plane"),
                        CONTACT_TOLERANCE=CONTACT_TOLERANCE, CONTACT_COPLANAR=CONTACT_COPLANAR,
+                       CONTACT_SPOT_TEXELS=CONTACT_SPOT_TEXELS, BLUR_STEP_SINE=BLUR_STEP_SINE,
                        **near_field_defines(params["near_field"], params["near_field_scale"]))
         self.visibility_pass = load_compute(ctx, SHADERS / "val_visibility.glsl", defines)
         self.visibility = ctx.texture_array((view.width, view.height, m), 1, dtype="f4")
         self.visibility.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self.visible_share = ctx.texture((view.width, view.height), 1, dtype="f4")
+        self.visible_share.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.gather_prog = load_program(ctx, SHADERS / "gather.glsl", defines)
         self.gather_vao = ctx.vertex_array(self.gather_prog, [])
         self.gathered = ctx.texture((view.width, view.height), 4, dtype="f4")
@@ -493,6 +545,7 @@ class ClusteredVirtualAreaLights(MethodBase):
                          u_blocker_min=BLOCKER_MIN, u_csm_sharpening=float(p["csm_sharpening"]),
                          u_kernel_scale=KERNEL_SCALES[p["cssm_kernel"]], u_contact_band=self.contact_band)
             self.visibility.bind_to_image(5, read=False, write=True, level=0, format=GL_R32F)
+            self.visible_share.bind_to_image(6, read=False, write=True, level=0, format=GL_R32F)
             prog.run(group_x=(self.width + 7) // 8, group_y=(self.height + 7) // 8)
             ctx.memory_barrier()
         with prof.stage("gather"):
@@ -523,9 +576,11 @@ class ClusteredVirtualAreaLights(MethodBase):
                 prog = self.blur_prog
                 unit = passes.gbuffer.bind(prog)
                 self.gathered.use(unit)
-                set_uniforms(prog, u_gathered=unit, u_interleave=interleave,
+                self.visible_share.use(unit + 1)
+                set_uniforms(prog, u_gathered=unit, u_visible_share=unit + 1, u_interleave=interleave,
                              u_max_distance=float(p["blur_distance_rel"] * 2.0 * self.radius),
-                             u_min_normal_dot=float(p["blur_normal_dot"]))
+                             u_min_normal_dot=float(p["blur_normal_dot"]),
+                             u_max_visibility_diff=float(p["blur_visibility_diff"]))
                 self.blur_vao.render(moderngl.TRIANGLES, vertices=3)
         else:
             skipped = ("blur",)
@@ -536,7 +591,7 @@ class ClusteredVirtualAreaLights(MethodBase):
             return
         park(self.ctx)
         for name in ("blur_fbo", "indirect", "blur_vao", "blur_prog", "gather_fbo", "gathered", "gather_vao",
-                     "gather_prog", "visibility", "visibility_pass", "maps", "clustering", "sampler"):
+                     "gather_prog", "visible_share", "visibility", "visibility_pass", "maps", "clustering", "sampler"):
             obj = getattr(self, name, None)
             if obj is not None:
                 obj.release()

@@ -28,6 +28,8 @@ uniform int u_resolution;
 uniform float u_normal_offset;
 uniform ivec2 u_size;
 layout(r32f, binding = 5) writeonly uniform image2DArray u_visibility;
+layout(r32f, binding = 6) writeonly uniform image2D u_visible_share;
+uniform sampler2D u_gbuffer_normal;
 #if VISIBILITY_CSSM
 uniform sampler2D u_basis_sin[TERM_GROUPS];   // atlases tiled as the depth atlas, MIP-mapped
 uniform sampler2D u_basis_cos[TERM_GROUPS];
@@ -143,35 +145,74 @@ bool contact_separates(ivec2 tile, ivec2 tt, float stored, vec3 o, vec3 x, vec3 
     return true;
 }
 
-// Contact blockers (see the method's manual): the fraction of the bilinear 2 x 2 texel footprint
-// around map coordinates uv whose stored surface lies in front of the receiver's own plane
-// (through x, normal n_geo) along the texel's own direction by more than CONTACT_TOLERANCE of
-// that distance, and less than `band` in front of the lifted receiver at distance d_world. The
-// map stores each texel's exact distance along its centre direction, so a texel showing the
-// receiver's own plane compares equal whatever the slope: no depth bias is needed, and a
-// blocker millimetres in front of the receiver (a zero-thickness wall at a junction, a lip over
-// a slot) is found where the CSM step's ramp or a one-texel bias lets it through.
+// The spot width (map texels) of the VAL on the surface texel tt shows if that surface is a contact
+// blocker of the lifted receiver (distance d_world from o), else 0: its stored distance lies in
+// front of the receiver's own plane (through x, normal n_geo; `plane` = (x - o) . n_geo) along the
+// texel's own direction by more than CONTACT_TOLERANCE of that distance, less than `band` in front
+// of the lifted receiver, and its surface separates o from x (contact_separates). The map stores
+// each texel's exact distance along its centre direction, so a texel showing the receiver's own
+// plane compares equal whatever the slope: no depth bias is needed, and a blocker millimetres in
+// front of the receiver (a zero-thickness wall at a junction, a lip over a slot) is found where the
+// CSM step's ramp or a one-texel bias lets it through. The VAL (size lambda) seen from x through a
+// blocker delta = d_world - stored in front of it spans lambda delta / d_world there, seen from o
+// (at `stored`) spot_scale delta / stored texels, spot_scale = lambda / (d_world x texel angle);
+// at least one texel (the bilinear footprint: the map resolves nothing finer).
+float contact_spot(ivec2 tile, ivec2 tt, vec3 o, vec3 x, vec3 n_geo, float plane, vec3 t, vec3 b, vec3 nv,
+                   float d_world, float band, float spot_scale) {
+    float stored = texelFetch(u_depth_atlas, tile + tt, 0).r;
+    if (stored >= d_world || d_world - stored >= band) return 0.0;
+    float den = dot(texel_direction(tt, t, b, nv), n_geo);
+    float t_own = plane / den;                                        // its distance to x's plane
+    if (den != 0.0 && t_own > 0.0 && stored >= t_own * (1.0 - CONTACT_TOLERANCE)) return 0.0;
+    if (!contact_separates(tile, tt, stored, o, x, t, b, nv)) return 0.0;
+    return max(1.0, spot_scale * (d_world - stored) / stored);
+}
+
+// The share of texel cell tt (texel centres at integer coordinates of s) inside the square of
+// side w centred at s.
+float cell_overlap(vec2 s, vec2 tt, float w) {
+    vec2 e = clamp(min(tt + 0.5, s + 0.5 * w) - max(tt - 0.5, s - 0.5 * w), 0.0, 1.0);
+    return e.x * e.y;
+}
+
+// Contact blockers (see the method's manual): the share of the VAL that the contact blockers
+// around map coordinates uv (the lifted receiver's direction) hide from the receiver. Each
+// blocking texel k (contact_spot) hides the part of the VAL's spot on it (a square of side W_k
+// texels centred on the receiver's direction) that its cell covers, cell / W_k^2 of the VAL:
+// b = sum_k overlap(cell_k, spot_k) / W_k^2. For W_k = 1 (a point VAL, or a blocker within the
+// hard-shadow limit) that is the bilinear weight of the 2 x 2 footprint; a blocker as wide as the
+// spot hides the whole VAL whatever its size. The test runs where one of the bilinear 2 x 2
+// texels blocks; then the window holding the widest of their spots (at most CONTACT_SPOT_TEXELS
+// texels wide: wider spots are counted inside it only, the rest left to the CSSM) is read.
 float contact_blocked(int j, Val c, vec3 o, vec3 x, vec3 n_geo, vec2 uv, float d_world, float band, float texel, float lambda) {
     vec3 t, b;
     orthonormal_basis(c.normal.xyz, t, b);
     ivec2 tile = ivec2(j % u_tiles_x, j / u_tiles_x) * u_resolution;
     vec2 s = (uv * 0.5 + 0.5) * float(u_resolution) - 0.5;
     vec2 i0 = floor(s);
-    vec2 fr = s - i0;
     float plane = dot(x - o, n_geo);
-    float blocked = 0.0;
+    float spot_scale = lambda * length(x - o) / (texel * d_world);   // texel / |x - o|: the texel angle
+    float spots[4];
+    float widest = 0.0;
     for (int k = 0; k < 4; ++k) {
-        ivec2 off = ivec2(k & 1, k >> 1);
-        ivec2 tt = clamp(ivec2(i0) + off, ivec2(0), ivec2(u_resolution - 1));
-        float stored = texelFetch(u_depth_atlas, tile + tt, 0).r;
-        if (stored >= d_world || d_world - stored >= band) continue;
-        float den = dot(texel_direction(tt, t, b, c.normal.xyz), n_geo);
-        float t_own = plane / den;                                        // its distance to x's plane
-        if (den != 0.0 && t_own > 0.0 && stored >= t_own * (1.0 - CONTACT_TOLERANCE)) continue;
-        if (!contact_separates(tile, tt, stored, o, x, t, b, c.normal.xyz)) continue;
-        vec2 w = mix(1.0 - fr, fr, vec2(off));
-        float spread = lambda * (d_world - stored);   // the VAL's footprint on the blocker, times d_world
-        blocked += w.x * w.y * (spread <= texel * d_world ? 1.0 : texel * d_world / spread);
+        ivec2 tt = clamp(ivec2(i0) + ivec2(k & 1, k >> 1), ivec2(0), ivec2(u_resolution - 1));
+        spots[k] = contact_spot(tile, tt, o, x, n_geo, plane, t, b, c.normal.xyz, d_world, band, spot_scale);
+        widest = max(widest, spots[k]);
+    }
+    if (widest <= 1.0) {   // no blocker (0), or every spot within one texel: the bilinear weights
+        vec2 fr = s - i0;
+        return (spots[0] > 0.0 ? (1.0 - fr.x) * (1.0 - fr.y) : 0.0) + (spots[1] > 0.0 ? fr.x * (1.0 - fr.y) : 0.0)
+             + (spots[2] > 0.0 ? (1.0 - fr.x) * fr.y : 0.0) + (spots[3] > 0.0 ? fr.x * fr.y : 0.0);
+    }
+    float h = 0.5 * min(widest, float(CONTACT_SPOT_TEXELS));
+    ivec2 lo = ivec2(ceil(s - 0.5 - h)), hi = ivec2(floor(s + 0.5 + h));
+    float blocked = 0.0;
+    for (int v = lo.y; v <= hi.y; ++v) {
+        for (int u = lo.x; u <= hi.x; ++u) {
+            ivec2 tt = clamp(ivec2(u, v), ivec2(0), ivec2(u_resolution - 1));   // the edge texel beyond the map
+            float w = contact_spot(tile, tt, o, x, n_geo, plane, t, b, c.normal.xyz, d_world, band, spot_scale);
+            if (w > 0.0) blocked += cell_overlap(s, vec2(u, v), w) / (w * w);
+        }
     }
     return blocked;
 }
@@ -252,8 +293,20 @@ void main() {
     if (px.x >= u_size.x || px.y >= u_size.y) return;
     vec4 p = texelFetch(u_gbuffer_position, px, 0);
     vec3 ng = texelFetch(u_gbuffer_geo_normal, px, 0).xyz;
+    vec3 ns = texelFetch(u_gbuffer_normal, px, 0).xyz;
+    vec2 share = vec2(0.0);   // VAL-level (visible, unshadowed) transfer: the blur's visibility guide
     for (int j = 0; j < u_cluster_count; ++j) {
         float v = p.w == 0.0 ? 0.0 : val_visibility(j, p.xyz, ng);
         imageStore(u_visibility, ivec3(px, j), vec4(v));
+        Val c = vals[j];
+        if (p.w == 0.0 || c.position.w <= 0.0) continue;
+        vec3 d = c.position.xyz - p.xyz;
+        float d2 = dot(d, d);
+        if (d2 <= 0.0) continue;
+        vec3 w = d * inversesqrt(d2);
+        float u = flux_luminance(c.flux.rgb) * max(dot(ns, w), 0.0) * max(-dot(c.normal.xyz, w), 0.0)
+                / max(d2, c.normal.w * c.normal.w * INV_PI);
+        share += vec2(u * v, u);
     }
+    imageStore(u_visible_share, px, vec4(share.y > 0.0 ? share.x / share.y : 1.0));
 }
