@@ -9,7 +9,8 @@ from bench.model.corpus import load_scene
 from bench.run.harness import run_method
 from methods.val_clustered.method import ClusteredVirtualAreaLights as M
 
-PAPER = {"val_origin": "centre", "near_ignore": 0.5, "cssm_kernel": "lod", "fourier_terms": 4, "interleave": 8}
+PAPER = {"val_origin": "centre", "near_ignore": 0.5, "cssm_kernel": "lod", "fourier_terms": 4, "interleave": 8,
+         "csm_depth_range": "unit"}
 W, H = map(int, os.environ.get("RES", "320x180").split("x"))
 
 ctx = create_context()

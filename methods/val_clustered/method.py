@@ -62,16 +62,17 @@ clustering.py, stage 3 shadow_maps.py):
    shadow's edge (`blur_visibility_diff`, below); skipped when `interleave` = 1.
 
 Defaults (issue #23): the paper's operating point (30 VALs of 1024 VPLs, parabolic CSSM) with
-six readings recorded below: the contact test (`contact_test=plane`), the map origin at the
+seven readings recorded below: the contact test (`contact_test=plane`), the map origin at the
 cluster's medoid VPL with nothing ignored (`val_origin=medoid`, `near_ignore=0`), the CSSM kernel matched to a box of the paper's width
 (`cssm_kernel=box`), 8 Fourier terms, the interleaved-sampling block scaled to the image
 width (`interleave=0`: 3 x 3 at 320 x 180), and the blur's visible share taken over the pixels
-on this pixel's side of a contact shadow's edge (`blur_visibility_diff=0.3`). The paper's own setting, which lets light through
+on this pixel's side of a contact shadow's edge (`blur_visibility_diff=0.3`), and the CSM depths
+mapped into [0, 1 - the step's ramp] (`csm_depth_range=ramp`). The paper's own setting, which lets light through
 walls on large scenes (a VAL's visibility is its mean's, geometry within 0.5 lambda of it is
 ignored, its soft-shadow kernel is wider than the paper's, the 4-term step ramps over metres and
 contact blockers within that ramp are missed):
 `val_origin=centre near_ignore=0.5 cssm_kernel=lod fourier_terms=4 interleave=8 contact_test=off
-blur_visibility_diff=1`.
+blur_visibility_diff=1 csm_depth_range=unit`.
 At 320 x 180,
 1 frame, seed 0, relMSE of `indirect` against the visible one-bounce reference (image mean /
 reference), paper setting -> defaults without the contact test (`contact_test=off`): sponza 1.13 (1.10) -> 0.61 (0.92), lost_empire 2.39
@@ -95,10 +96,15 @@ conference 0.101 -> 0.080 (0.940), cornell_box 0.0230 -> 0.0226 (0.953), lost_em
 0.175 (0.861), holodeck 0.096 -> 0.027 (0.979; its 20 worst pixels 0.47 -> 0.27 of the squared
 error); at 160 x 120 (128 spp) rooms/main 0.230 -> 0.214, big_floor -14%, the other procedural
 scenes unchanged.
-rooms/far (0.89 -> 0.87, direct 0.59) is not a map leak:
-VAL 20 spans the wall between rooms 1 and 2 (7 of its 21 VPLs in room 2) and its origin sits 3
-cm from that wall, so the blocker search finds z_avg -> 0 and the penumbra estimate widens the
-kernel to the whole map. Figures and commands: NOTES.md.
+rooms/far stayed above no indirect light (0.87 against 0.59) until (2026-12-03) the CSM depths
+were mapped into [0, 1 - the step's ramp] ("Depth range of the Fourier step", below): its excess
+was a map leak, the step's periodic wrap, not the clustering: rooms/far 0.869 -> 0.213 (image mean
+0.80 -> 0.47 of the reference: what is left is light through door 1 from VALs whose map origin
+does not see through it, as a perfect map per VAL would give, 0.42 of per-VPL shadows), the real
+scenes within 0.3% or better (sponza 0.581 -> 0.567, lost_empire 0.175 -> 0.172, sibenik 0.111 ->
+0.109, cornell_box, conference and holodeck within 0.3%; holodeck's 20 worst pixels 0.27 -> 0.34
+of its squared error), the procedural ones unchanged or better (big_floor -10%). Figures and
+commands: NOTES.md.
 
 Opt-in corrections of issue #23 (default off; measurements in NOTES.md):
 - `split_clusters=S` > 0: after the maps of the M VALs are drawn, each VPL is tested against
@@ -205,6 +211,28 @@ Corrections and choices relative to the paper's text (recorded here as the house
 - Depth normalisation: z = distance / far_j with far_j the largest distance drawn in VAL j's
   map (a reduction pass), not the scene's extent: the step's width is a fixed fraction of
   the range, so a tight range sharpens it in metres.
+- Depth range of the Fourier step (`csm_depth_range=ramp`, the default; `unit` is Annen et al.'s
+  and the paper's): the truncated step f(t) = 1/2 + 2 sum_k sin(c_k t) / c_k, t = z - d, has
+  period 2 in t: besides its step at t = 0 it steps back at t = -1 (and +1) with the same ramp.
+  With depths normalised to the whole [0, 1] a blocker near a map's origin (z ~ 0) in front of a
+  receiver at the map's far end (d ~ 1, or beyond the farthest drawn point, where d is clamped to
+  1) lies within that second ramp and reads lit (8 terms, s = 3: a blocker at z = 0.0075 before
+  d = 1 gives V = 0.64, at z = 0.001 V = 0.95), and a distant texel (z ~ 1) behind a receiver
+  near the origin (d a few hundredths) enters the blocker search as a partial blocker. The depths (and the receiver's d)
+  now span [0, R], R = 1 - delta (delta = `csm_step_band`, the sharpened step's ramp), so |z - d|
+  <= 1 - delta and every blocker delta or more in front of a receiver reads blocked; the step's
+  ramp in metres widens by 1 / R (2.3% with 8 terms, s = 3), and the contact test's band with it.
+  Found on rooms/far: VAL 20's map origin, its medoid VPL, lies 3 cm from the zero-thickness wall
+  between rooms 1 and 2 and room 3's back wall beyond the door wall is 5.8 m away, beyond the
+  map's far distance: VAL 20's V over that back wall 0.33 on average, now 0 (82% of the map's excess light
+  there, half of the view's error in the 25 cm of that back wall beside the door wall, where the
+  reference is dark; the manual before blamed the penumbra estimate of that straddling cluster).
+  The other wrap darkened holodeck's lip (row 82, cols 160-162): VAL 19's origin 0.3 m away (d =
+  0.035 of its 8.3 m range) counted its distant texels, behind the receivers, as partial blockers (V 0.53 where 0.84-0.92 of its
+  VPLs are seen, by ray tests; now 0.99). Without interleaving those pixels read 0.715, 0.681,
+  0.672 now, against 0.714, 0.684, 0.661 with each VPL's exact visibility (before: 0.667, 0.647,
+  0.633); Mitsuba's 0.68, 0.66, 0.57 differ by the 1024 VPLs' sampling, so they now count among
+  holodeck's 20 worst pixels (share of the squared error 0.27 -> 0.34, relMSE unchanged).
 - Map origin (default `val_origin=medoid`, `near_ignore=0`): the paper places the area light at
   the cluster's centre, the mean of its VPLs, and since that may lie inside geometry (Fig. 7)
   ignores the geometry near it, which "can result in the loss of some existing shadows". The
@@ -289,6 +317,7 @@ Parameters:
 | visibility           | cssm       | cssm, hard                     | per-VAL visibility: soft (parabolic CSSM) or one hard shadow test |
 | shadow_resolution    | 128        | 16 .. 1024                     | paraboloid shadow map resolution per VAL (texels, a power of two; paper: 256) (quality knob; sweep 64, 128, 256) |
 | fourier_terms        | 8          | 4, 8                           | Fourier terms of the convolution shadow maps (paper: 4) |
+| csm_depth_range      | ramp       | ramp, unit                     | share of the Fourier step's period the normalised map depths use: [0, 1 - the sharpened step's ramp], so that no blocker in front of a receiver reaches the step's periodic wrap at z - d = -1 (ramp), or the whole [0, 1] (unit, Annen et al.'s and the paper's) |
 | csm_sharpening       | 3.0        | 2.0 .. 16.0                    | slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) (2: Annen et al.'s plain scaling) |
 | split_clusters       | 0          | 0 .. 256                       | spare VALs S for the split round: the VPLs their VAL's map origin does not see are clustered again into up to S more VALs with maps of their own (0: the paper's clustering alone) |
 | split_mode           | reassign   | reassign, recluster            | a VPL its VAL's origin does not see: to the nearest VAL whose origin sees it, else to the split round (reassign), or straight to the split round (recluster) |
@@ -372,6 +401,15 @@ def csm_step_band(terms: int, sharpening: float) -> float:
     return float(brentq(lambda delta: 2.0 * np.sum(np.sin(-c * delta) / c) + 1.0 / sharpening, 1e-9, 0.5 / terms))
 
 
+def csm_depth_range(band: float) -> float:
+    """The share [0, R] of the unit depth range that a map's normalised depths (and receivers) use:
+    the truncated Fourier step f(z - d) has period 2 and steps back at z - d = -1 with the same
+    ramp, so R = 1 - band (the sharpened step's ramp, `csm_step_band`) keeps every blocker in front
+    of a receiver at least the ramp away from that second step (with the unit range a blocker near
+    a map's origin in front of a receiver at its far end read as lit)."""
+    return 1.0 - band
+
+
 def interleave_block(interleave: int, width: int) -> int:
     """The interleaved-sampling block size B: `interleave`, or for 0 the paper's 8 x 8 blocks of an
     800-pixel-wide image scaled to `width` (rounded half up, at least 1)."""
@@ -399,6 +437,11 @@ class ClusteredVirtualAreaLights(MethodBase):
         "shadow_resolution": Param(128, "paraboloid shadow map resolution per VAL (texels, a power of two; "
                                         "paper: 256)", 16, 1024, quality=True, sweep=(64, 128, 256)),
         "fourier_terms": Param(8, "Fourier terms of the convolution shadow maps (paper: 4)", choices=(4, 8)),
+        "csm_depth_range": Param("ramp", "share of the Fourier step's period the normalised map depths use: "
+                                         "[0, 1 - the sharpened step's ramp], so that no blocker in front of a "
+                                         "receiver reaches the step's periodic wrap at z - d = -1 (ramp), or the "
+                                         "whole [0, 1] (unit, Annen et al.'s and the paper's)",
+                                 choices=("ramp", "unit")),
         "csm_sharpening": Param(3.0, "slope s of the scaled CSM shadow test V = clamp(1 + s (F - 1/2), 0, 1) "
                                      "(2: Annen et al.'s plain scaling)", 2.0, 16.0),
         "split_clusters": Param(0, "spare VALs S for the split round: the VPLs their VAL's map origin does not "
@@ -489,8 +532,10 @@ class ClusteredVirtualAreaLights(MethodBase):
                                         split_reassign=params["split_mode"] == "reassign",
                                         size_scale=params["val_size_scale"])
         m = self.clustering.cluster_count   # VALs and maps in all, the spare ones included
-        self.maps = ParaboloidShadowMaps(gpu, self.clustering, res, cssm, groups, params["near_ignore"])
         self.contact_band = csm_step_band(params["fourier_terms"], params["csm_sharpening"])
+        self.maps = ParaboloidShadowMaps(gpu, self.clustering, res, cssm, groups, params["near_ignore"],
+                                         depth_range=csm_depth_range(self.contact_band)
+                                         if params["csm_depth_range"] == "ramp" else 1.0)
         defines = dict(self.maps.defines, VISIBILITY_CSSM=int(cssm), BEHIND_HORIZON=int(params["behind_plane"] == "horizon"),
                        CONTACT_TEST=int(params["contact_test"] == "plane"),
                        CONTACT_TOLERANCE=CONTACT_TOLERANCE, CONTACT_COPLANAR=CONTACT_COPLANAR,

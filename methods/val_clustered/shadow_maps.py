@@ -38,7 +38,7 @@ class ParaboloidShadowMaps:
     BASIS_NAMES = ("u_basis_sin", "u_basis_cos", "u_basis_zsin", "u_basis_zcos")
 
     def __init__(self, gpu, clustering: ValClustering, resolution: int, cssm: bool, term_groups: int,
-                 near_ignore: float):
+                 near_ignore: float, depth_range: float = 1.0):
         ctx = self.ctx = gpu.ctx
         self.gpu, self.clustering, self.resolution = gpu, clustering, int(resolution)
         self.cssm, self.term_groups, self.near_ignore = bool(cssm), int(term_groups), float(near_ignore)
@@ -56,7 +56,7 @@ class ParaboloidShadowMaps:
         self.defines = dict(VAL_DEFINES, TERM_GROUPS=self.term_groups, TESS_MAX_ARC_UV=max_arc_uv,
                             TESS_MAX_LEVEL=TESS_MAX_LEVEL, MAX_LOD=self.max_lod,
                             PAIR_TRIANGLE_BITS=PAIR_TRIANGLE_BITS, SPLAT_MAX_TEXELS=SPLAT_MAX_TEXELS, SPLAT_MIN_COS=SPLAT_MIN_COS,
-                            MAP_EMPTY=MAP_EMPTY)
+                            MAP_EMPTY=MAP_EMPTY, CSM_DEPTH_RANGE=float(depth_range))
         self.atlas = ctx.texture(size, 1, dtype="f4")
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.fbo = ctx.framebuffer([self.atlas])

@@ -351,7 +351,8 @@ def test_medoid_origin_and_visibility_split_on_rooms(gl_ctx):
     s = run_method(gl_ctx, InstantRadiosityShadowed, scene, "far", w, h, {"vpl_count": 1024}, **kw).indirect
     paper = run_method(gl_ctx, ClusteredVirtualAreaLights, scene, "far", w, h,
                        {"val_origin": "centre", "near_ignore": 0.5, "cssm_kernel": "lod", "fourier_terms": 4,
-                        "interleave": 8, "contact_test": "off"}, **kw).indirect
+                        "interleave": 8, "contact_test": "off",
+                        "csm_depth_range": "unit"}, **kw).indirect
     fixed = run_method(gl_ctx, ClusteredVirtualAreaLights, scene, "far", w, h,
                        {"val_origin": "medoid", "near_ignore": 0.0, "split_clusters": 15, "behind_plane": "horizon"},
                        **kw).indirect

@@ -14,7 +14,7 @@ from methods.val_clustered.method import ClusteredVirtualAreaLights, interleave_
 
 W, H = 96, 72
 PAPER = {"val_origin": "centre", "near_ignore": 0.5, "cssm_kernel": "lod", "fourier_terms": 4, "interleave": 8,
-         "contact_test": "off", "blur_visibility_diff": 1.0}
+         "contact_test": "off", "blur_visibility_diff": 1.0, "csm_depth_range": "unit"}
 
 
 @pytest.fixture(scope="module")

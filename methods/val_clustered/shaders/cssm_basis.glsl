@@ -1,6 +1,8 @@
 // Convolution shadow map basis images (Annen et al. 2007, 2008; paper Sec. 4.1 and 6): per
-// texel of VAL j's paraboloid map, the normalised depth z = min(distance / far_j, 1) (1 where
-// nothing was drawn) expanded into the Fourier basis of the shadow test,
+// texel of VAL j's paraboloid map, the normalised depth z = R min(distance / far_j, 1) (R where
+// nothing was drawn; R = CSM_DEPTH_RANGE = 1 - the sharpened step's ramp: the step has period 2
+// in z - d and steps back at z - d = -1, which the unit range let blockers near the map's origin
+// reach, see the method's manual) expanded into the Fourier basis of the shadow test,
 //   sin(c_k z), cos(c_k z)  (the basis images B_i)
 //   z sin(c_k z), z cos(c_k z), z  (the "basis-z" images of the average-blocker search)
 // with c_k = pi (2k - 1), k = 1 .. 4 TERM_GROUPS, four terms per RGBA image. One quad per tile
@@ -36,7 +38,7 @@ layout(location = 2 * TERM_GROUPS) out float out_z;
 #endif
 
 float normalised_depth(ivec2 texel) {
-    return v_far > 0.0 ? clamp(texelFetch(u_depth_atlas, texel, 0).r / v_far, 0.0, 1.0) : 1.0;
+    return CSM_DEPTH_RANGE * (v_far > 0.0 ? clamp(texelFetch(u_depth_atlas, texel, 0).r / v_far, 0.0, 1.0) : 1.0);
 }
 
 void main() {

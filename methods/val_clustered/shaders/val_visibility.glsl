@@ -254,14 +254,14 @@ float val_visibility(int j, vec3 x, vec3 n_geo) {
 #endif
     }
 #if VISIBILITY_CSSM
-    float far = c.flux.w;
+    float far = c.flux.w / CSM_DEPTH_RANGE;   // normalised depths span [0, CSM_DEPTH_RANGE] (see cssm_basis.glsl)
 #if CONTACT_TEST
     float contact = in_map ? contact_blocked(j, c, o, x, n_geo, uv, d_world, u_contact_band * far, texel, c.normal.w) : 0.0;
     if (contact >= 1.0) return 0.0;
 #else
     float contact = 0.0;
 #endif
-    float d = min(d_world / far, 1.0);
+    float d = min(d_world / far, CSM_DEPTH_RANGE);
     float lambda = c.normal.w;
     vec2 tex = uv * 0.5 + 0.5;
     float per_radian = 0.5 / (1.0 + cos_theta);
