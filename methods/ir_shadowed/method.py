@@ -9,17 +9,21 @@ Per frame:
    flux luminance from the RSM with an exact integer CDF (see `ir_unshadowed`'s manual).
 2. `vpl_shadow_maps`: every VPL's hemicube (5 faces of a cube aligned with the VPL normal:
    front and four sides; the VPL emits nothing behind its plane) in one instanced draw of the
-   scene, N x 5 instances into one R32F atlas of `shadow_resolution`^2 tiles. The vertex
+   scene, N x 5 instances into one atlas of `shadow_resolution`^2 tiles. The vertex
    shader projects with the face's 90-degree frustum, clips to it with gl_ClipDistance and
-   maps clip space affinely into the tile; each texel keeps the smallest distance to the VPL
-   (MIN blending, no depth buffer, so the test does not depend on depth-buffer precision).
+   maps clip space affinely into the tile; each texel keeps its nearest fragment's distance to
+   the VPL and plane (RGBA32F, by a depth test on distance / far; `shadow_test=distance`: the
+   smallest distance alone, MIN blending into R32F with no depth buffer).
    The hemicube's centre is lifted 1e-4 scene radii off the VPL's surface along its normal,
    so that surface (flat, or curving away) lands strictly below the side faces' horizon.
 3. `gather`: `ir_unshadowed`'s sum (with its near field: each VPL's 1/d^2 bounded at the radius
    of the area it stands for, bench/gl/near_field.py; see ir_unshadowed's manual), each VPL
    term multiplied by its visibility: the receiver
    is offset along its geometric normal by `normal_offset` texel footprints (more at grazing
-   angles) and compared with the stored distance plus one texel footprint.
+   angles) and compared with the stored distance plus one texel footprint, and (default
+   `shadow_test=plane`) with the stored blocker's plane: blocked when the segment from the
+   hemicube's centre crosses that plane before the receiver (no nearer than the stored point
+   minus a texel footprint, so only the texel's own surface counts).
 
 The gather is the unshadowed one compiled with the visibility test, term for term, so for the
 same seed `ir_shadowed` <= `ir_unshadowed` at every pixel, and equal where nothing occludes
@@ -29,14 +33,20 @@ that VPL, and the normal offset lets light past an occluder's edge in a band abo
 `normal_offset` texels wide (it shrinks with the resolution). The hemicube pass draws the scene
 N x 5 times: its cost is proportional to N x triangles.
 
-Leaks at the seams of thin walls: a receiver just past a zero-thickness wall (the rooms scene's
-walls meet floor and ceiling edge to edge) is within one texel footprint of the wall in the
-VPL's hemicube and passes the test, so bands along those seams and door jambs receive light
-the wall blocks. It is the error of this method where occlusion decides the bounce (rooms/far,
-a room lit only through a door); it falls as `shadow_resolution` grows, for a frame that costs
-more. The default stays at 64 (the error per millisecond is better at 64 wherever no thin wall
-decides the bounce); `--param ir_shadowed.shadow_resolution=128` lowers the seam error (NOTES.md
-has the measurements).
+Zero-thickness walls (`shadow_test`, issue #23): a shadow map's tolerance (here one texel
+footprint, 3% of the distance at 64 texels) lets a receiver just past a zero-thickness wall pass
+the distance test: the rooms scene's walls meet floor and ceiling edge to edge, and with the
+distance test alone (`shadow_test=distance`, the earlier default) bands along those seams and the
+door jambs received light the wall blocks, the error of this method where occlusion decides the
+bounce (rooms/far, a room lit only through a door: relMSE 4.40 against the visible reference at
+320 x 180, no indirect 0.59; rooms/main 3.06, no indirect 0.49). Each texel therefore also keeps
+its nearest fragment's plane (the hemicube pass takes a depth test on distance instead of MIN
+blending, so the record is one fragment's), and a receiver behind that plane is blocked: a
+receiver past a wall whose texel holds the wall is behind the wall's plane however close it is.
+The receiver's own surface never blocks it (the normal offset puts it on the VPL's side of its
+own plane, exactly, where the distance test needs its tolerance). Measured at the defaults
+(NOTES.md): rooms/far 4.40 -> 0.30, rooms/main 3.06 -> 0.079, holodeck 0.034 -> 0.029, the other
+procedural views and cornell_box within 1%.
 
 Parameters:
 
@@ -46,13 +56,15 @@ Parameters:
 | vpl_count          | 256       | 1 .. 8192                      | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
 | shadow_resolution  | 64        | 8 .. 512                       | hemicube face resolution of each VPL's shadow map (texels) (quality knob; sweep 32, 64, 128) |
 | normal_offset      | 0.5       | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VPL shadow test, in hemicube texel footprints at the receiver |
+| shadow_test        | plane     | distance, plane                | VPL shadow test: distance, the receiver's distance against the stored one plus a texel footprint; plane, also blocked behind the stored blocker's plane (a zero-thickness wall within a footprint) |
 | clamp_distance_rel | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
 | near_field         | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
 | near_field_scale   | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
 | max_triangle_draws | 10000000  | 1 .. 10000000000               | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
 <!-- end of parameters -->
 
-The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels; a combination larger than
+The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels (RGBA32F and a 32-bit depth
+buffer with `shadow_test=plane`, 20 bytes a texel: 105 MB at the defaults; R32F with `distance`); a combination larger than
 the GL's maximum texture size is refused with an error naming both parameters.
 
 Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024 (VAL's VPL count); one shadow map
@@ -99,12 +111,15 @@ GL_CLIP_DISTANCE0 = 0x3000
 FAR_SCALE = 2.02     # hemicube far plane / scene radius: no two scene points are further apart than 2R
 NEAR_SCALE = 1e-5    # near plane / scene radius
 LIFT_SCALE = 1e-4    # hemicube centre above the VPL's surface / scene radius (>> float32 rounding)
+PLANE_TOLERANCE = 1e-4  # shadow_test=plane: a receiver blocks behind a plane by more than this share of its distance
+SHADOW_TESTS = ("distance", "plane")
 
 
 class HemicubeAtlas:
-    """Hemicube shadow maps of all VPLs: one R32F atlas, rendered in one instanced draw."""
+    """Hemicube shadow maps of all VPLs: one R32F atlas, rendered in one instanced draw (with
+    `plane`, an RGBA32F atlas of (distance, blocker plane) and a depth buffer on distance / far)."""
 
-    def __init__(self, gpu, vpl_count: int, resolution: int):
+    def __init__(self, gpu, vpl_count: int, resolution: int, plane: bool = False):
         ctx = gpu.ctx
         self.gpu, self.vpl_count, self.resolution = gpu, int(vpl_count), int(resolution)
         tiles = self.vpl_count * HEMICUBE_FACES
@@ -115,10 +130,13 @@ class HemicubeAtlas:
         if max(size) > max_size:
             raise ParamError(f"method 'ir_shadowed': vpl_count={vpl_count} x shadow_resolution={resolution} "
                              f"needs a {size[0]}x{size[1]} hemicube atlas, over GL_MAX_TEXTURE_SIZE={max_size}")
-        self.atlas = ctx.texture(size, 1, dtype="f4")
+        self.plane = bool(plane)
+        self.atlas = ctx.texture(size, 4 if self.plane else 1, dtype="f4")
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self.fbo = ctx.framebuffer([self.atlas])
-        self.program = load_program(ctx, SHADERS / "vpl_shadow_maps.glsl", SHADOW_DEFINES)
+        self.depth = ctx.depth_texture(size) if self.plane else None
+        self.fbo = ctx.framebuffer([self.atlas], self.depth)
+        self.defines = dict(SHADOW_DEFINES, PLANE_TEST=int(self.plane), PLANE_TOLERANCE=PLANE_TOLERANCE)
+        self.program = load_program(ctx, SHADERS / "vpl_shadow_maps.glsl", self.defines)
         self.vao = gpu.vertex_array(self.program)
         self.near, self.far = NEAR_SCALE * gpu.radius, FAR_SCALE * gpu.radius
         self.lift = LIFT_SCALE * gpu.radius
@@ -128,9 +146,13 @@ class HemicubeAtlas:
         self.fbo.use()
         ctx.viewport = (0, 0, self.atlas.width, self.atlas.height)
         ctx.scissor = None
-        self.fbo.clear(3.0e38, 0.0, 0.0, 0.0)
-        ctx.enable_only(moderngl.BLEND)
-        ctx.blend_equation = moderngl.MIN
+        self.fbo.clear(3.0e38, 0.0, 0.0, 0.0, depth=1.0)
+        if self.plane:   # the nearest fragment's whole record: a depth test, not per-channel MIN
+            ctx.enable_only(moderngl.DEPTH_TEST)
+            ctx.depth_func = "<"
+        else:
+            ctx.enable_only(moderngl.BLEND)
+            ctx.blend_equation = moderngl.MIN
         for i in range(4):
             ctx.enable_direct(GL_CLIP_DISTANCE0 + i)
         sampler.bind()
@@ -140,7 +162,7 @@ class HemicubeAtlas:
         for i in range(4):
             ctx.disable_direct(GL_CLIP_DISTANCE0 + i)
         ctx.blend_equation = moderngl.FUNC_ADD
-        ctx.disable(moderngl.BLEND)
+        ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
 
     def set_uniforms(self, program) -> None:
         set_uniforms(program, u_hemicube_tiles_x=self.tiles_x, u_hemicube_tiles_y=self.tiles_y,
@@ -154,8 +176,9 @@ class HemicubeAtlas:
 
     def release(self) -> None:
         park(self.gpu.ctx)
-        for obj in (self.fbo, self.atlas, self.program):
-            obj.release()
+        for obj in (self.fbo, self.atlas, self.depth, self.program):
+            if obj is not None:
+                obj.release()
 
 
 class InstantRadiosityShadowed(MethodBase):
@@ -170,6 +193,10 @@ class InstantRadiosityShadowed(MethodBase):
                                    quality=True, sweep=(32, 64, 128)),
         "normal_offset": Param(0.5, "receiver offset along its geometric normal for the VPL shadow test, "
                                     "in hemicube texel footprints at the receiver", 0.0, 16.0),
+        "shadow_test": Param("plane", "VPL shadow test: distance, the receiver's distance against the "
+                                         "stored one plus a texel footprint; plane, also blocked behind the "
+                                         "stored blocker's plane (a zero-thickness wall within a footprint)",
+                             choices=SHADOW_TESTS),
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
         "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
@@ -196,10 +223,11 @@ class InstantRadiosityShadowed(MethodBase):
                           f"{params['max_triangle_draws']:,d}")
         self.ctx = gpu.ctx
         self.eps = params["clamp_distance_rel"] * gpu.radius
-        self.hemicubes = HemicubeAtlas(gpu, params["vpl_count"], params["shadow_resolution"])
+        self.hemicubes = HemicubeAtlas(gpu, params["vpl_count"], params["shadow_resolution"],
+                                       plane=params["shadow_test"] == "plane")
         self.sampler = RsmVplSampler(gpu.ctx, params["vpl_count"])
         self.gather = VplGather(gpu.ctx, view.width, view.height, SHADERS / "gather.glsl",
-                                 dict(SHADOW_DEFINES, VPL_SHADOWS=1,
+                                 dict(self.hemicubes.defines, VPL_SHADOWS=1,
                                       **near_field_defines(params["near_field"], params["near_field_scale"])))
 
     def _bind_visibility(self, program, unit: int) -> int:

@@ -321,3 +321,34 @@ def test_shadowed_skips_a_row_over_its_triangle_draw_budget(gl_ctx):
     with pytest.raises(SkipRow, match="1,536 triangle draws"):
         run_method(gl_ctx, InstantRadiosityShadowed, make_open_box(), "main", 16, 16,
                    {"max_triangle_draws": 1000}, frames=1)
+
+
+def make_thin_wall_scene():
+    """A zero-thickness wall (x = 0, 1 m high) standing on a floor; a spot lights the back wall
+    at x = -1.5 (normal +x), whose VPLs light the floor and the thin wall's face on their side. No
+    segment from them reaches the floor beyond the thin wall (it crosses x = 0 below 1 m): there
+    the exact bounce is zero, also within a hemicube texel footprint of the wall's foot."""
+    parts = [grid_quad([-1.5, 0, -1], [0, 0, 2], [3, 0, 0], 6),      # floor, normal +y
+             grid_quad([0, 0, -1], [0, 1, 0], [0, 0, 2], 4),         # thin wall, normal +x
+             grid_quad([-1.5, 0, -1], [0, 2, 0], [0, 0, 2], 4)]      # back wall, normal -x (two-sided)
+    colours = ([0.8, 0.8, 0.8], [0.8, 0.8, 0.8], [0.8, 0.8, 0.8])
+    light = SpotLight([-0.5, 0.9, 0.0], [-1.5, 0.6, 0.0], [20.0] * 3, cutoff_angle_deg=30)
+    return scene_from_parts("thin_wall", parts, colours, [light],
+                            {"main": Camera([1.3, 0.9, 0.0], [0.1, 0.0, 0.0], fov_y_deg=60)})
+
+
+def test_shadowed_floor_past_a_thin_wall_gets_no_bounce(gl_ctx):
+    """At the defaults (`shadow_test=plane`) a receiver just past a zero-thickness wall is behind
+    the stored wall's plane and gets none of the VPLs' light; the distance test alone (the stored
+    distance plus a texel footprint) let a band along the wall's foot through (rooms' seams)."""
+    scene = make_thin_wall_scene()
+    same_vpls = {"vpl_count": InstantRadiosityShadowed.params["vpl_count"].default}
+    u = render_frame(gl_ctx, InstantRadiosityUnshadowed, scene, same_vpls)
+    s = render_frame(gl_ctx, InstantRadiosityShadowed, scene, {})
+    g = s["gbuffer"]
+    p = g["position"]
+    band = g["mask"] & (np.abs(p[..., 1]) < 1e-4) & (p[..., 0] > 0.0) & (p[..., 0] < 0.3)
+    assert band.sum() > 50
+    unshadowed = u["indirect"][band].sum()
+    assert unshadowed > 0.0
+    assert s["indirect"][band].sum() < 0.01 * unshadowed, s["indirect"][band].sum() / unshadowed

@@ -1,7 +1,11 @@
 // Visibility of a VPL from a receiver through the VPL's hemicube: the receiver x is moved along
 // its geometric normal (turned towards the VPL) by `u_normal_offset` texel footprints, more at
 // grazing angles (as the shared shadow maps), then compared with the stored nearest distance
-// plus one texel footprint.
+// plus one texel footprint. With PLANE_TEST (shadow_test=plane) the texel's blocker also blocks
+// when the segment centre -> receiver crosses that blocker's plane before the receiver
+// (dot(m, rel) > 1), the crossing no nearer than the stored point minus a texel footprint (the
+// texel's own surface): a receiver just past a zero-thickness wall, within the one-footprint
+// tolerance of the distance test, is behind the wall's plane.
 #ifndef VPL_SHADOW_GLSL
 #define VPL_SHADOW_GLSL
 #include "hemicube.glsl"
@@ -24,8 +28,15 @@ float vpl_visibility(int k, Vpl v, vec3 x, vec3 n_geo) {
     if (f < 0) return 1.0;
     ivec2 texel_xy = clamp(ivec2((uv * 0.5 + 0.5) * float(u_hemicube_resolution)), ivec2(0),
                            ivec2(u_hemicube_resolution - 1));
-    float stored = texelFetch(u_hemicube_atlas, hemicube_tile(k, f) * u_hemicube_resolution + texel_xy, 0).r;
-    return length(rel) <= stored + texel ? 1.0 : 0.0;
+    vec4 record = texelFetch(u_hemicube_atlas, hemicube_tile(k, f) * u_hemicube_resolution + texel_xy, 0);
+    float stored = record.r;
+    float len = length(rel);
+    if (len > stored + texel) return 0.0;
+#if PLANE_TEST
+    float along = dot(record.yzw, rel);   // > 1: the plane is crossed before the receiver, at len / along
+    if (along > 1.0 + PLANE_TOLERANCE && len / along >= stored - texel) return 0.0;
+#endif
+    return 1.0;
 }
 
 #endif

@@ -2,7 +2,11 @@
 // projects with face f's 90-degree frustum, clips to it with gl_ClipDistance and moves the
 // clip-space result into the face's atlas tile (an affine map of clip space, so clipping
 // and perspective interpolation stay exact). Each texel keeps the smallest distance to the
-// VPL (MIN blending into R32F, no depth buffer).
+// VPL (MIN blending into R32F, no depth buffer). With PLANE_TEST (shadow_test=plane) each texel
+// keeps the nearest fragment's record (distance, m) instead, by a depth test on distance / far:
+// m = n / dot(n, r) is the plane of its triangle relative to the hemicube's centre (points r of
+// the plane satisfy dot(m, r) = 1; m = 0 for a plane through the centre), n from the
+// derivatives of the interpolated position (the triangle's own plane, not a shading normal).
 #include "hemicube.glsl"
 uniform float u_near;
 uniform float u_far;
@@ -34,8 +38,19 @@ void main() {
 
 #if defined FRAGMENT_SHADER
 in vec3 v_rel;
+#if PLANE_TEST
+layout(location = 0) out vec4 out_record;
+void main() {
+    float distance = length(v_rel);
+    vec3 n = cross(dFdx(v_rel), dFdy(v_rel));
+    float c = dot(n, v_rel);
+    out_record = vec4(distance, abs(c) > 0.0 ? n / c : vec3(0.0));
+    gl_FragDepth = distance / u_far;
+}
+#else
 layout(location = 0) out float out_distance;
 void main() {
     out_distance = length(v_rel);
 }
+#endif
 #endif
