@@ -139,12 +139,15 @@ def main(scene_name, view, params):
               f"size {cap['val_size'][j]:.2f} far {cap['val_far'][j]:.2f} VPLs {cap['val_count'][j]:.0f}")
 
 
+def parse(v):
+    """A command-line parameter value: int, else float, else the string."""
+    for t in (int, float):
+        try:
+            return t(v)
+        except ValueError:
+            pass
+    return v
+
+
 if __name__ == "__main__":
-    def parse(v):
-        for t in (int, float):
-            try:
-                return t(v)
-            except ValueError:
-                pass
-        return v
     main(sys.argv[1], sys.argv[2], {k: parse(v) for k, v in (a.split("=", 1) for a in sys.argv[3:])})

@@ -18,14 +18,7 @@ from studies import val_clustered_contact as vc
 
 AXES = {"+x": (1, 0, 0), "-x": (-1, 0, 0), "+y": (0, 1, 0), "-y": (0, -1, 0), "+z": (0, 0, 1), "-z": (0, 0, -1)}
 
-
-def parse(v):
-    for t in (int, float):
-        try:
-            return t(v)
-        except ValueError:
-            pass
-    return v
+parse = vc.parse
 
 
 def main(view, params):
