@@ -73,38 +73,13 @@ ignored, its soft-shadow kernel is wider than the paper's, the 4-term step ramps
 contact blockers within that ramp are missed):
 `val_origin=centre near_ignore=0.5 cssm_kernel=lod fourier_terms=4 interleave=8 contact_test=off
 blur_visibility_diff=1 csm_depth_range=unit`.
-At 320 x 180,
-1 frame, seed 0, relMSE of `indirect` against the visible one-bounce reference (image mean /
-reference), paper setting -> defaults without the contact test (`contact_test=off`): sponza 1.13 (1.10) -> 0.61 (0.92), lost_empire 2.39
-(1.32) -> 0.30 (0.90), sibenik 0.29 -> 0.21, conference 0.25 -> 0.13, cornell_box 0.031 ->
-0.023, holodeck 0.19 -> 0.14 (means 0.95-1.05); every one below no indirect at all, every
-procedural scene better (rooms/far 10.2 -> 0.89, at 0.80 of the reference's mean). What is
-left: the error does not fall steadily along the ladder (lost_empire 1.18, 1.67, 0.30, 0.54;
-sponza 1.72, 0.80, 0.61, 0.85): lost_empire's VALs are 7-36 m wide, their CSSM kernels (from
-the VAL's size) far wider than the 1 m blocks around a receiver, and how much leaks where
-depends on which cluster a receiver's nearest VPLs fall in; one hard test per VAL falls
-steadily (lost_empire 0.20 at 20 VALs, 0.13 at 60). holodeck's 20 worst pixels (0.58 of its
-squared error) and rooms/main's error (1.23, direct 0.49) are contact blockers the CSM step
-cannot resolve, which the contact test (the default since, below) resolves: relMSE (mean)
-off -> plane: sponza 0.610 (0.918) -> 0.590 (0.911), sibenik 0.207 (1.053) -> 0.132 (1.043),
-conference 0.130 (0.974) -> 0.101 (0.943), cornell_box 0.0229 (0.954) -> 0.0230 (0.953),
-lost_empire 0.300 (0.900) -> 0.232 (0.879), holodeck 0.136 (1.007) -> 0.096 (0.989), rooms/main
-1.23 -> 0.21; the procedural scenes within 3% or better (hidden_bounce +2.4%, big_floor -35%).
-Then (2026-12-03) the contact test read over the VAL's spot on the blocker and the blur's
-visible share (both below): sponza 0.590 -> 0.581 (0.910), sibenik 0.132 -> 0.111 (1.039),
-conference 0.101 -> 0.080 (0.940), cornell_box 0.0230 -> 0.0226 (0.953), lost_empire 0.232 ->
-0.175 (0.861), holodeck 0.096 -> 0.027 (0.979; its 20 worst pixels 0.47 -> 0.27 of the squared
-error); at 160 x 120 (128 spp) rooms/main 0.230 -> 0.214, big_floor -14%, the other procedural
-scenes unchanged.
-rooms/far stayed above no indirect light (0.87 against 0.59) until (2026-12-03) the CSM depths
-were mapped into [0, 1 - the step's ramp] ("Depth range of the Fourier step", below): its excess
-was a map leak, the step's periodic wrap, not the clustering: rooms/far 0.869 -> 0.213 (image mean
-0.80 -> 0.47 of the reference: what is left is light through door 1 from VALs whose map origin
-does not see through it, as a perfect map per VAL would give, 0.42 of per-VPL shadows), the real
-scenes within 0.3% or better (sponza 0.581 -> 0.567, lost_empire 0.175 -> 0.172, sibenik 0.111 ->
-0.109, cornell_box, conference and holodeck within 0.3%; holodeck's 20 worst pixels 0.27 -> 0.34
-of its squared error), the procedural ones unchanged or better (big_floor -10%). Figures and
-commands: NOTES.md.
+At 320 x 180, 1 frame, seed 0, relMSE of `indirect` against the visible one-bounce reference
+(image mean / reference), paper setting -> today's defaults: sponza 1.13 (1.10) -> 0.567 (0.91),
+lost_empire 2.39 (1.32) -> 0.172 (0.86), sibenik 0.29 -> 0.109, conference 0.25 -> 0.080,
+cornell_box 0.031 -> 0.022, holodeck 0.19 -> 0.027, rooms/far 10.2 -> 0.213 (mean 0.47: light
+through door 1 from VALs whose map origin does not see through it; a perfect map per VAL gives
+0.42 of per-VPL shadows); each below no indirect at all. How each reading moved these figures, in
+order, with the commands: NOTES.md ("The defaults' history").
 
 Opt-in corrections of issue #23 (default off; measurements in NOTES.md):
 - `split_clusters=S` > 0: after the maps of the M VALs are drawn, each VPL is tested against
@@ -168,20 +143,9 @@ Corrections and choices relative to the paper's text (recorded here as the house
   texels blocks, over the window of the widest of their spots (at most CONTACT_SPOT_TEXELS = 8
   texels: a wider spot is counted inside it only, the rest left to the CSSM), and
   V = V_cssm (1 - b) (`visibility=hard`: band = the test's one-texel bias, lambda = 0, blocked
-  when b >= 1/2). The rule before (2026-12-02) weighed a separating texel w min(1, t d /
-  (lambda delta)) (w its bilinear weight, t the texel footprint at x), as if every blocker were
-  one texel wide: on holodeck the ceiling VALs' maps see the top of the door panel's lip 4-6 cm in
-  front of the receivers under it, their spots 4-7 texels wide and lip but for one edge column,
-  so each VAL was blocked 0.2-0.8 (b now 0.6-0.8; lost_empire's VALs of 7-36 m behind its 1 m
-  blocks: relMSE 0.232 -> 0.176, mean 0.879 -> 0.861). A spot reaching past the blocker's edge
-  in the map still lets part of the VAL through where a solid blocker (a lip 4 cm thick, whose
-  front face and underside the map does not show) hides it all: holodeck's slot reads 0.03-0.08
-  without interleaving where Mitsuba has 0.01 (0.08-0.15 before; NOTES.md). Found on holodeck (a lip 9 mm over
-  a slot in a door panel hid the ceiling: Mitsuba 0.03, the method 0.6-1.0) and rooms (a
-  zero-thickness wall 5-10 mm in front of receivers along its junctions). Tried and dropped:
-  keeping only texels on the VAL's side of the receiver, counting a texel as fully blocking,
-  min(V_cssm, 1 - b) instead of the product, one reconstructed plane per texel (the side whose
-  second difference is smaller: still darkened hidden_bounce's floor-wall junction, +6%) (NOTES.md).
+  when b >= 1/2). Found on holodeck (a lip 9 mm over a slot in a door panel hid the ceiling:
+  Mitsuba 0.03, the method 0.6-1.0) and rooms (a zero-thickness wall 5-10 mm in front of
+  receivers along its junctions); the rule before, the variants tried and dropped: NOTES.md.
   A coplanar surface on the far side of a zero-thickness wall (the side walls of `rooms` run
   through the junction) reads as the receiver's own plane, so about half of the junction's
   bilinear footprint still lets light through there.
@@ -222,17 +186,8 @@ Corrections and choices relative to the paper's text (recorded here as the house
   now span [0, R], R = 1 - delta (delta = `csm_step_band`, the sharpened step's ramp), so |z - d|
   <= 1 - delta and every blocker delta or more in front of a receiver reads blocked; the step's
   ramp in metres widens by 1 / R (2.3% with 8 terms, s = 3), and the contact test's band with it.
-  Found on rooms/far: VAL 20's map origin, its medoid VPL, lies 3 cm from the zero-thickness wall
-  between rooms 1 and 2 and room 3's back wall beyond the door wall is 5.8 m away, beyond the
-  map's far distance: VAL 20's V over that back wall 0.33 on average, now 0 (82% of the map's excess light
-  there, half of the view's error in the 25 cm of that back wall beside the door wall, where the
-  reference is dark; the manual before blamed the penumbra estimate of that straddling cluster).
-  The other wrap darkened holodeck's lip (row 82, cols 160-162): VAL 19's origin 0.3 m away (d =
-  0.035 of its 8.3 m range) counted its distant texels, behind the receivers, as partial blockers (V 0.53 where 0.84-0.92 of its
-  VPLs are seen, by ray tests; now 0.99). Without interleaving those pixels read 0.715, 0.681,
-  0.672 now, against 0.714, 0.684, 0.661 with each VPL's exact visibility (before: 0.667, 0.647,
-  0.633); Mitsuba's 0.68, 0.66, 0.57 differ by the 1024 VPLs' sampling, so they now count among
-  holodeck's 20 worst pixels (share of the squared error 0.27 -> 0.34, relMSE unchanged).
+  Found on rooms/far (VAL 20's origin 3 cm from the wall between rooms 1 and 2 lit room 3 through
+  it, V 0.33 -> 0) and holodeck's lip (the other wrap darkened it); NOTES.md has the figures.
 - Map origin (default `val_origin=medoid`, `near_ignore=0`): the paper places the area light at
   the cluster's centre, the mean of its VPLs, and since that may lie inside geometry (Fig. 7)
   ignores the geometry near it, which "can result in the loss of some existing shadows". The
