@@ -28,7 +28,7 @@ from bench.gl import create_context
 from bench.model.corpus import load_scene
 from methods.visibility_gates.method import topology_seeds
 from methods.visibility_gates.voxels import voxelize
-from reference.env import load_mitsuba
+from studies.segment_truth import mitsuba_scene, ray_truth
 
 LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 OFFSET = 2e-3  # m: ray ends moved off their surfaces
@@ -132,30 +132,14 @@ def rule_matrix(frame, lookup="normal", empty=None) -> tuple[np.ndarray, np.ndar
 
 
 def truth_matrix(scene, frame) -> np.ndarray:
-    """(pixels, VPLs): is the segment between the two points free of triangles (Mitsuba ray_test)?"""
-    mi = load_mitsuba()
-    mesh = mi.Mesh("scene", len(scene.vertices), len(scene.faces))
-    params = mi.traverse(mesh)
-    params["vertex_positions"] = mi.Float(scene.vertices.astype(np.float32).ravel())
-    params["faces"] = mi.UInt32(scene.faces.astype(np.uint32).ravel())
-    params.update()
-    msc = mi.load_dict({"type": "scene", "mesh": mesh})
+    """(pixels, VPLs): is the segment between the two points free of triangles (Mitsuba's ray tests)?"""
+    mi, msc = mitsuba_scene(scene)
     gb, v = frame["gbuffer"], frame["vpls"]
     mask = gb["mask"].ravel()
     xs = (gb["position"].reshape(-1, 3)[mask] + OFFSET * gb["normal"].reshape(-1, 3)[mask]).astype(np.float64)
     lit = np.any(v["flux"] != 0, axis=1)
     y = v["position"][lit] + OFFSET * v["normal"][lit]
-    out = np.zeros((len(xs), len(y)), bool)
-    for first in range(0, len(xs), 512):
-        o = np.repeat(xs[first:first + 512], len(y), 0)
-        d = np.tile(y, (len(o) // len(y), 1)) - o
-        length = np.linalg.norm(d, axis=1)
-        d /= length[:, None]
-        ray = mi.Ray3f(mi.Point3f(*(mi.Float(o[:, i].astype(np.float32)) for i in range(3))),
-                       mi.Vector3f(*(mi.Float(d[:, i].astype(np.float32)) for i in range(3))))
-        ray.maxt = mi.Float((length * (1 - 1e-4)).astype(np.float32))
-        out[first:first + 512] = ~np.array(msc.ray_test(ray), bool).reshape(-1, len(y))
-    return out
+    return ray_truth(mi, msc, xs, y)[0]
 
 
 def contributions(frame) -> np.ndarray:

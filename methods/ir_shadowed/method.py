@@ -48,30 +48,47 @@ own plane, exactly, where the distance test needs its tolerance). Measured at th
 (NOTES.md): rooms/far 4.40 -> 0.30, rooms/main 3.06 -> 0.079, holodeck 0.034 -> 0.029, the other
 procedural views and cornell_box within 1%.
 
+Defaults on the real scenes (issue #23; NOTES.md "1024 VPLs and a quarter-texel offset"):
+`vpl_count` 1024 (was 256; ir_unshadowed's count, so that at the defaults the two methods sum
+the same VPLs): on sponza 256 VPLs are the worst rung over six seeds (relMSE against the visible
+reference 1.05 at 64, 2.23 at 256, 0.34 at 1024: at 64 the near-field bound of the few large VPLs
+darkens the bounce, mean 0.70, and hides their splotches; at 256 the bound no longer darkens, mean
+0.98, but a few VPLs still light whole arches). `normal_offset` 0.25 texels (was 0.5): the offset
+receiver sees past an occluder's edge in a band that wide (rooms' door jambs: leaked light 0.113
+-> 0.084 of the truly visible light at 96 x 72), and 0.25 is lower or equal on every view measured
+(rooms/far -1/3 over three seeds, holodeck 0.029 -> 0.013), while 0.1 and 0 bring back acne. The
+shadow-map pass discards fragments outside their own tile: a huge triangle through a VPL's
+position, clipped near the hemicube's centre where float rounding of x / w reaches a texel, could
+land its tiny distances in the neighbouring tile's border row or column, a false blocker (an
+open box at 1024 VPLs lost 0.13% of its light in 13% of its pixels; now 0.005%).
+
 Parameters:
 
 <!-- parameters: generated from the Param declarations by `gibench manuals --write` -->
 | parameter          | default   | range                          | meaning |
 |--------------------|-----------|--------------------------------|---|
-| vpl_count          | 256       | 1 .. 8192                      | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 16, 64, 256, 1024) |
+| vpl_count          | 1024      | 1 .. 8192                      | VPLs drawn from the RSM per frame (importance sampled by flux luminance, stratified) (quality knob; sweep 64, 256, 1024, 4096) |
 | shadow_resolution  | 64        | 8 .. 512                       | hemicube face resolution of each VPL's shadow map (texels) (quality knob; sweep 32, 64, 128) |
-| normal_offset      | 0.5       | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VPL shadow test, in hemicube texel footprints at the receiver |
+| normal_offset      | 0.25      | 0.0 .. 16.0                    | receiver offset along its geometric normal for the VPL shadow test, in hemicube texel footprints at the receiver |
 | shadow_test        | plane     | distance, plane                | VPL shadow test: distance, the receiver's distance against the stored one plus a texel footprint; plane, also blocked behind the stored blocker's plane (a zero-thickness wall within a footprint) |
 | clamp_distance_rel | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
 | near_field         | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
 | near_field_scale   | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
-| max_triangle_draws | 10000000  | 1 .. 10000000000               | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
+| max_triangle_draws | 100000000 | 1 .. 10000000000               | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
 <!-- end of parameters -->
 
 The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels (RGBA32F and a 32-bit depth
-buffer with `shadow_test=plane`, 20 bytes a texel: 105 MB at the defaults; R32F with `distance`); a combination larger than
-the GL's maximum texture size is refused with an error naming both parameters.
+buffer with `shadow_test=plane`, 20 bytes a texel: 420 MB at the defaults, 1.7 GB at 4096 VPLs;
+R32F with `distance`); a combination larger than the GL's maximum texture size is refused with an
+error naming both parameters.
 
-Quality ladder (`gibench run`): vpl_count 64, 256 (default), 1024 (VAL's VPL count); one shadow map
-per VPL makes the cost linear in the count, so 4096 (seconds per frame here) is left to `--param`.
-Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_count x triangles
-triangle draws; a row above `max_triangle_draws` (default 1e7) is skipped with that figure
-rather than run for minutes.
+Quality ladder (`gibench run`): vpl_count 256, 1024 (default), 4096, `ir_unshadowed`'s, so that
+on every rung the two methods sum the same VPLs; one shadow map per VPL makes the cost linear in
+the count. Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_count x
+triangles triangle draws; a row above `max_triangle_draws` (default 1e8: sponza's and sibenik's
+66k and 75k triangles at 1024 VPLs, 35-50 s a frame on the 2-core llvmpipe host; conference's
+and lost_empire's 331k and 225k are over it) is skipped with that figure rather than run for
+minutes.
 
 Example:
 
@@ -85,9 +102,10 @@ In motion (bench.run.sequence): It keeps nothing between states: a frame where a
 prepares it again (programs, the hemicube atlas); the VPL shadow maps are drawn every frame anyway.
 Measured update per moved frame at 160x90, light (rooms_light_sweep) 21 ms, camera
 (sponza_camera_walk) skipped, geometry (cornell_spot_moving_block) 42 ms (`python -m
-studies.motion_costs`, 2 cores shared with other work).
+studies.motion_costs`, 2 cores shared with other work; measured at the earlier defaults, 256 VPLs
+and a guard of 1e7).
 
-Stress limit params:shadow_resolution=512: 256 VPLs x 5 hemicube faces of 512^2 need an 18432^2 atlas, larger than GL_MAX_TEXTURE_SIZE (16384 on llvmpipe); prepare() refuses it with one line naming both parameters.
+Stress limit params:shadow_resolution=512: 1024 VPLs x 5 hemicube faces of 512^2 need a 36864^2 atlas, larger than GL_MAX_TEXTURE_SIZE (16384 on llvmpipe); prepare() refuses it with one line naming both parameters.
 """
 from __future__ import annotations
 
@@ -184,14 +202,14 @@ class HemicubeAtlas:
 class InstantRadiosityShadowed(MethodBase):
     name = "ir_shadowed"
     summary = "Instant radiosity, RSM-sampled VPLs with hemicube shadow maps (indirect visibility)"
-    ladder = ({"vpl_count": 64}, {}, {"vpl_count": 1024})
+    ladder = ({"vpl_count": 256}, {}, {"vpl_count": 4096})   # ir_unshadowed's: the same VPLs on every rung
     stages = ("vpl_sample", "vpl_shadow_maps", "gather")
     needs = frozenset({"gbuffer", "shadow_map", "direct", "rsm"})
     params = {
-        "vpl_count": Param(256, VPL_COUNT_DOC, 1, 8192, quality=True, sweep=(16, 64, 256, 1024)),
+        "vpl_count": Param(1024, VPL_COUNT_DOC, 1, 8192, quality=True, sweep=(64, 256, 1024, 4096)),
         "shadow_resolution": Param(64, "hemicube face resolution of each VPL's shadow map (texels)", 8, 512,
                                    quality=True, sweep=(32, 64, 128)),
-        "normal_offset": Param(0.5, "receiver offset along its geometric normal for the VPL shadow test, "
+        "normal_offset": Param(0.25, "receiver offset along its geometric normal for the VPL shadow test, "
                                     "in hemicube texel footprints at the receiver", 0.0, 16.0),
         "shadow_test": Param("plane", "VPL shadow test: distance, the receiver's distance against the "
                                          "stored one plus a texel footprint; plane, also blocked behind the "
@@ -200,7 +218,7 @@ class InstantRadiosityShadowed(MethodBase):
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
         "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
-        "max_triangle_draws": Param(10_000_000, "skip the row when vpl_count x triangles exceeds this (the "
+        "max_triangle_draws": Param(100_000_000, "skip the row when vpl_count x triangles exceeds this (the "
                                                 "hemicubes draw the whole scene once per VPL every frame)",
                                     1, 10_000_000_000),
     }

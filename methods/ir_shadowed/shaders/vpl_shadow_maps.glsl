@@ -7,6 +7,10 @@
 // m = n / dot(n, r) is the plane of its triangle relative to the hemicube's centre (points r of
 // the plane satisfy dot(m, r) = 1; m = 0 for a plane through the centre), n from the
 // derivatives of the interpolated position (the triangle's own plane, not a shading normal).
+// A fragment outside its own tile is discarded: a triangle clipped near the VPL (w near the near
+// plane, where float rounding of x / w reaches a texel) can land a texel into the neighbouring
+// tile, and its tiny distance there (often the VPL's own surface) read as a blocker at that tile's
+// border row or column (open box, 1024 VPLs: 0.13% of the light lost in 13% of the pixels).
 #include "hemicube.glsl"
 uniform float u_near;
 uniform float u_far;
@@ -14,6 +18,7 @@ uniform float u_far;
 #if defined VERTEX_SHADER
 in vec3 in_position;
 out vec3 v_rel;
+flat out ivec2 v_tile;
 out float gl_ClipDistance[4];
 void main() {
     int k = gl_InstanceID / HEMICUBE_FACES, f = gl_InstanceID % HEMICUBE_FACES;
@@ -32,15 +37,19 @@ void main() {
     // ndc in [-1, 1] -> ((ndc + 1) / 2 + tile) / tiles * 2 - 1, times w
     clip.xy = (clip.xy + w * (1.0 + 2.0 * tile)) / tiles - w;
     v_rel = rel;
+    v_tile = hemicube_tile(k, f);
     gl_Position = clip;
 }
 #endif
 
 #if defined FRAGMENT_SHADER
 in vec3 v_rel;
+flat in ivec2 v_tile;
+bool outside_own_tile() { return ivec2(gl_FragCoord.xy) / u_hemicube_resolution != v_tile; }
 #if PLANE_TEST
 layout(location = 0) out vec4 out_record;
 void main() {
+    if (outside_own_tile()) discard;
     float distance = length(v_rel);
     vec3 n = cross(dFdx(v_rel), dFdy(v_rel));
     float c = dot(n, v_rel);
@@ -50,6 +59,7 @@ void main() {
 #else
 layout(location = 0) out float out_distance;
 void main() {
+    if (outside_own_tile()) discard;
     out_distance = length(v_rel);
 }
 #endif
