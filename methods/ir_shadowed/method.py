@@ -86,7 +86,7 @@ Quality ladder (`gibench run`): vpl_count 256, 1024 (default), 4096, `ir_unshado
 on every rung the two methods sum the same VPLs; one shadow map per VPL makes the cost linear in
 the count. Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_count x
 triangles triangle draws; a row above `max_triangle_draws` (default 1e8: sponza's and sibenik's
-66k and 75k triangles at 1024 VPLs, 35-50 s a frame on the 2-core llvmpipe host; conference's
+66k and 75k triangles at 1024 VPLs, 25-45 s a frame on the 2-core llvmpipe host; conference's
 and lost_empire's 331k and 225k are over it) is skipped with that figure rather than run for
 minutes.
 

@@ -32,12 +32,12 @@ void main() {
     gl_ClipDistance[1] = w + clip.x;
     gl_ClipDistance[2] = w - clip.y;
     gl_ClipDistance[3] = w + clip.y;
-    vec2 tile = vec2(hemicube_tile(k, f));
+    v_tile = hemicube_tile(k, f);
+    vec2 tile = vec2(v_tile);
     vec2 tiles = vec2(u_hemicube_tiles_x, u_hemicube_tiles_y);
     // ndc in [-1, 1] -> ((ndc + 1) / 2 + tile) / tiles * 2 - 1, times w
     clip.xy = (clip.xy + w * (1.0 + 2.0 * tile)) / tiles - w;
     v_rel = rel;
-    v_tile = hemicube_tile(k, f);
     gl_Position = clip;
 }
 #endif
@@ -49,10 +49,10 @@ bool outside_own_tile() { return ivec2(gl_FragCoord.xy) / u_hemicube_resolution 
 #if PLANE_TEST
 layout(location = 0) out vec4 out_record;
 void main() {
-    if (outside_own_tile()) discard;
     float distance = length(v_rel);
-    vec3 n = cross(dFdx(v_rel), dFdy(v_rel));
+    vec3 n = cross(dFdx(v_rel), dFdy(v_rel));   // derivatives before the discard (uniform control flow)
     float c = dot(n, v_rel);
+    if (outside_own_tile()) discard;
     out_record = vec4(distance, abs(c) > 0.0 ? n / c : vec3(0.0));
     gl_FragDepth = distance / u_far;
 }
