@@ -8,8 +8,12 @@ Per frame:
    numbers: for a given seed and frame both methods use identical VPLs), importance sampled by
    flux luminance from the RSM with an exact integer CDF (see `ir_unshadowed`'s manual).
 2. `vpl_shadow_maps`: every VPL's hemicube (5 faces of a cube aligned with the VPL normal:
-   front and four sides; the VPL emits nothing behind its plane) in one instanced draw of the
-   scene, N x 5 instances into one atlas of `shadow_resolution`^2 tiles. The vertex
+   front and four sides; the VPL emits nothing behind its plane) into one atlas of
+   `shadow_resolution`^2 tiles, N x 5 faces. The scene is cut into clusters of 64 nearby
+   triangles (Morton order); a compute pass keeps, for each face, the clusters whose bounding
+   sphere is not wholly outside its frustum, and one multi-draw renders each cluster instanced
+   into the faces that kept it (clusters.py: the clip planes would drop the others' triangles
+   whole, so the atlas is the one drawing every triangle into every face gives). The vertex
    shader projects with the face's 90-degree frustum, clips to it with gl_ClipDistance and
    maps clip space affinely into the tile; each texel keeps its nearest fragment's distance to
    the VPL and plane (RGBA32F, by a depth test on distance / far; `shadow_test=distance`: the
@@ -30,8 +34,9 @@ same seed `ir_shadowed` <= `ir_unshadowed` at every pixel, and equal where nothi
 any VPL (an open box, the inside of a sphere). Visibility is resolved at hemicube resolution:
 receivers within about a texel of a concave corner seen at a grazing angle from a VPL can lose
 that VPL, and the normal offset lets light past an occluder's edge in a band about
-`normal_offset` texels wide (it shrinks with the resolution). The hemicube pass draws the scene
-N x 5 times: its cost is proportional to N x triangles.
+`normal_offset` texels wide (it shrinks with the resolution). The hemicube pass draws each
+triangle into the faces that may see it: its cost is proportional to N x triangles (on sponza
+at 1024 VPLs 23% of the (cluster, face) pairs survive the culling).
 
 Zero-thickness walls (`shadow_test`, issue #23): a shadow map's tolerance (here one texel
 footprint, 3% of the distance at 64 texels) lets a receiver just past a zero-thickness wall pass
@@ -74,7 +79,7 @@ Parameters:
 | clamp_distance_rel | 0.0001    | 1e-07 .. 1.0                   | distance clamp eps of max(eps, distance) relative to the scene radius (tames the 1/d^2 singularity) |
 | near_field         | footprint | clamp, disc_element, footprint | how an emitter's 1/d^2 is bounded near it, d the emitter-receiver distance, A the area it stands for: clamp max(eps, d)^2; disc_element d^2 + A / pi (a disc's form factor); footprint max(d^2, s A / pi) (a clamp at the radius of s times the emitter's area); each at least eps^2 |
 | near_field_scale   | 1.0       | 0.001 .. 100.0                 | s of near_field=footprint: the clamp's area as a fraction of the area the emitter stands for |
-| max_triangle_draws | 100000000 | 1 .. 10000000000               | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the whole scene once per VPL every frame) |
+| max_triangle_draws | 400000000 | 1 .. 10000000000               | skip the row when vpl_count x triangles exceeds this (the hemicubes draw the scene once per VPL every frame) |
 <!-- end of parameters -->
 
 The atlas holds vpl_count x 5 tiles of shadow_resolution^2 texels (RGBA32F and a 32-bit depth
@@ -84,10 +89,11 @@ error naming both parameters.
 
 Quality ladder (`gibench run`): vpl_count 256, 1024 (default), 4096, `ir_unshadowed`'s, so that
 on every rung the two methods sum the same VPLs; one shadow map per VPL makes the cost linear in
-the count. Cost guard: every frame draws the whole scene into every VPL's hemicube, vpl_count x
-triangles triangle draws; a row above `max_triangle_draws` (default 1e8: sponza's and sibenik's
-66k and 75k triangles at 1024 VPLs, 25-45 s a frame on the 2-core llvmpipe host; conference's
-and lost_empire's 331k and 225k are over it) is skipped with that figure rather than run for
+the count. Cost guard: every frame draws the scene into every VPL's hemicube, vpl_count x
+triangles triangle draws (before the culling); a row above `max_triangle_draws` (default 4e8,
+about a minute a frame on the 2-core llvmpipe host: at 1024 VPLs sponza's 66k triangles take
+15-20 s a frame, conference's 331k 47-55 s, lost_empire's 225k 61 s; the 4096 rung runs on sponza and
+sibenik, not on conference and lost_empire) is skipped with that figure rather than run for
 minutes.
 
 Example:
@@ -121,6 +127,7 @@ from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
 from bench.gl.near_field import (NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, NEAR_FIELDS, NEAR_SCALE_DEFAULT,
                                    NEAR_SCALE_DOC, NEAR_SCALE_RANGE, near_field_defines)
 from bench.gl.vpl import VPL_DEFINES, RsmVplSampler, VplGather
+from .clusters import CLUSTER_TRIANGLES, ClusteredScene, cluster_defines
 
 SHADERS = Path(__file__).parent / "shaders"
 HEMICUBE_FACES = 5  # front + 4 sides; injected into the shaders as a #define
@@ -134,10 +141,13 @@ SHADOW_TESTS = ("distance", "plane")
 
 
 class HemicubeAtlas:
-    """Hemicube shadow maps of all VPLs: one R32F atlas, rendered in one instanced draw (with
-    `plane`, an RGBA32F atlas of (distance, blocker plane) and a depth buffer on distance / far)."""
+    """Hemicube shadow maps of all VPLs: one R32F atlas (with `plane`, an RGBA32F atlas of
+    (distance, blocker plane) and a depth buffer on distance / far), rendered in one multi-draw of
+    the scene's triangle clusters, each instanced into the faces whose frustum it may reach
+    (clusters.py)."""
 
-    def __init__(self, gpu, vpl_count: int, resolution: int, plane: bool = False):
+    def __init__(self, gpu, vpl_count: int, resolution: int, plane: bool = False,
+                 cluster_triangles: int = CLUSTER_TRIANGLES):
         ctx = gpu.ctx
         self.gpu, self.vpl_count, self.resolution = gpu, int(vpl_count), int(resolution)
         tiles = self.vpl_count * HEMICUBE_FACES
@@ -153,14 +163,17 @@ class HemicubeAtlas:
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.depth = ctx.depth_texture(size) if self.plane else None
         self.fbo = ctx.framebuffer([self.atlas], self.depth)
-        self.defines = dict(SHADOW_DEFINES, PLANE_TEST=int(self.plane), PLANE_TOLERANCE=PLANE_TOLERANCE)
+        self.defines = dict(SHADOW_DEFINES, PLANE_TEST=int(self.plane), PLANE_TOLERANCE=PLANE_TOLERANCE,
+                            **cluster_defines(cluster_triangles))
         self.program = load_program(ctx, SHADERS / "vpl_shadow_maps.glsl", self.defines)
-        self.vao = gpu.vertex_array(self.program)
+        self.scene = ClusteredScene(gpu, self.defines, self.vpl_count * HEMICUBE_FACES, cluster_triangles)
         self.near, self.far = NEAR_SCALE * gpu.radius, FAR_SCALE * gpu.radius
         self.lift = LIFT_SCALE * gpu.radius
 
     def render(self, sampler: RsmVplSampler) -> None:
         ctx = self.gpu.ctx
+        sampler.bind()
+        self.scene.cull(self.set_uniforms)   # clusters wholly outside a face's frustum skip that face
         self.fbo.use()
         ctx.viewport = (0, 0, self.atlas.width, self.atlas.height)
         ctx.scissor = None
@@ -173,10 +186,9 @@ class HemicubeAtlas:
             ctx.blend_equation = moderngl.MIN
         for i in range(4):
             ctx.enable_direct(GL_CLIP_DISTANCE0 + i)
-        sampler.bind()
         self.set_uniforms(self.program)
         set_uniforms(self.program, u_near=self.near, u_far=self.far)
-        self.vao.render(moderngl.TRIANGLES, instances=self.vpl_count * HEMICUBE_FACES)
+        self.scene.draw(self.program)
         for i in range(4):
             ctx.disable_direct(GL_CLIP_DISTANCE0 + i)
         ctx.blend_equation = moderngl.FUNC_ADD
@@ -194,7 +206,7 @@ class HemicubeAtlas:
 
     def release(self) -> None:
         park(self.gpu.ctx)
-        for obj in (self.fbo, self.atlas, self.depth, self.program):
+        for obj in (self.fbo, self.atlas, self.depth, self.program, self.scene):
             if obj is not None:
                 obj.release()
 
@@ -218,8 +230,8 @@ class InstantRadiosityShadowed(MethodBase):
         "clamp_distance_rel": Param(1e-4, CLAMP_DOC, 1e-7, 1.0),
         "near_field": Param(NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, choices=NEAR_FIELDS),
         "near_field_scale": Param(NEAR_SCALE_DEFAULT, NEAR_SCALE_DOC, *NEAR_SCALE_RANGE),
-        "max_triangle_draws": Param(100_000_000, "skip the row when vpl_count x triangles exceeds this (the "
-                                                "hemicubes draw the whole scene once per VPL every frame)",
+        "max_triangle_draws": Param(400_000_000, "skip the row when vpl_count x triangles exceeds this (the "
+                                                "hemicubes draw the scene once per VPL every frame)",
                                     1, 10_000_000_000),
     }
 

@@ -1,4 +1,5 @@
-// All VPL hemicubes in one instanced draw: instance = (VPL k, face f); the vertex shader
+// All VPL hemicubes in one multi-draw: a command per cluster of triangles, instanced once per
+// (VPL k, face f) whose frustum it may reach (clusters.py culls the rest); the vertex shader
 // projects with face f's 90-degree frustum, clips to it with gl_ClipDistance and moves the
 // clip-space result into the face's atlas tile (an affine map of clip space, so clipping
 // and perspective interpolation stay exact). Each texel keeps the smallest distance to the
@@ -17,11 +18,12 @@ uniform float u_far;
 
 #if defined VERTEX_SHADER
 in vec3 in_position;
+in uint in_instance;   // (VPL k, face f) = k x HEMICUBE_FACES + f: the id list at the command's baseInstance
 out vec3 v_rel;
 flat out ivec2 v_tile;
 out float gl_ClipDistance[4];
 void main() {
-    int k = gl_InstanceID / HEMICUBE_FACES, f = gl_InstanceID % HEMICUBE_FACES;
+    int k = int(in_instance) / HEMICUBE_FACES, f = int(in_instance) % HEMICUBE_FACES;
     Vpl v = vpls[k];
     vec3 axis, right, up;
     hemicube_face(f, v.normal.xyz, axis, right, up);
