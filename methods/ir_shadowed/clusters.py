@@ -1,9 +1,9 @@
 """The scene cut into small clusters of nearby triangles, and the per-face culling that lets each
 hemicube face draw only the clusters its frustum can see.
 
-Drawing the whole scene into all 5 faces of every VPL's hemicube spent ~3/4 of the frame on
-triangles that clipping then threw away (sponza at 1024 VPLs, 160x90: 25.6 s of the 32.7 s
-`vpl_shadow_maps` stage remained with 8x8 faces). A face's frustum holds a fifth of the
+Drawing the whole scene into all 5 faces of every VPL's hemicube spent ~3/4 of the stage on
+per-triangle work, mostly for triangles that clipping then threw away (sponza at 1024 VPLs,
+160x90: 25.6 s of the 32.7 s `vpl_shadow_maps` stage remained with 8x8 faces). A face's frustum holds a fifth of the
 directions around the VPL, so most clusters lie wholly outside it. The culling is conservative
 (a bounding sphere wholly outside one of the four side planes) and only drops triangles that the
 clip planes would drop whole: the atlas is the same (up to the order of equal-depth fragments
@@ -20,7 +20,7 @@ command on llvmpipe (sponza: 1.2 M commands, 15 s); pulling each pair's corners 
 draw lost the vertex reuse of indexed draws (3x the vertex work: rooms 1.4 s -> 4.8 s).
 
 Layout: triangles sorted along a Morton curve of their centroids, `cluster_triangles` per cluster
-(the last one may hold fewer; its missing corners are clipped away).
+(the last one may hold fewer), indexing the scene's own vertex buffer.
 """
 from __future__ import annotations
 
