@@ -15,9 +15,10 @@ command per cluster (its faces' ids packed from `baseInstance` on, an exclusive 
 culling pass runs again to scatter the ids there, and one multi-draw renders every cluster into
 the faces that kept it (the id reaches the vertex shader as a per-instance attribute). The id
 list has room for every cluster in every face (4 bytes each: 21 MB on sponza at 1024 VPLs,
-106 MB on conference). One command per (cluster, face) instead paid ~12 us of set-up per
-command on llvmpipe (sponza: 1.2 M commands, 15 s); pulling each pair's corners in a single
-draw lost the vertex reuse of indexed draws (3x the vertex work: rooms 1.4 s -> 4.8 s).
+106 MB on conference). One command per kept (cluster, face) pair took as long (sponza: 1.2 M
+commands, 15-20 s against 14-17 s: what remains is the triangles the faces keep, not the
+commands) with a list sized by a read-back; pulling each pair's corners in a single draw lost
+the vertex reuse of indexed draws (rooms 1.4 s -> 4.8 s).
 
 Layout: triangles sorted along a Morton curve of their centroids, `cluster_triangles` per cluster
 (the last one may hold fewer), indexing the scene's own vertex buffer.
@@ -84,7 +85,8 @@ class ClusteredScene:
     """The scene's triangles in cluster order, the per-(VPL, face) culling passes and the
     multi-draw of what survives, for `instances` hemicube faces."""
 
-    def __init__(self, gpu, defines: dict, instances: int, cluster_triangles: int = CLUSTER_TRIANGLES):
+    def __init__(self, gpu, program, defines: dict, instances: int, cluster_triangles: int = CLUSTER_TRIANGLES):
+        """`program`: the shadow-map draw's (inputs in_position and the per-instance in_instance)."""
         ctx = self.ctx = gpu.ctx
         self.gpu, self.instances = gpu, int(instances)
         faces, records = build_clusters(gpu.positions, gpu.faces, int(cluster_triangles), gpu.radius)
@@ -97,18 +99,9 @@ class ClusteredScene:
         self.defines = dict(defines, **cluster_defines(cluster_triangles))
         self.cull_pass = load_compute(ctx, SHADERS / "cull_clusters.glsl", self.defines)
         self.command_pass = load_compute(ctx, SHADERS / "cluster_commands.glsl", self.defines)
-        self.vao = self.program = None
-
-    def vertex_array(self, program) -> moderngl.VertexArray:
-        """`program`'s VAO: positions, the cluster-ordered faces, the per-instance ids."""
-        if self.vao is None or self.program is not program:
-            if self.vao is not None:
-                self.vao.release()
-            self.program = program
-            self.vao = self.ctx.vertex_array(program, [(self.gpu.vbo_position, "3f", "in_position"),
-                                                       (self.instance_ids, "u/i", "in_instance")],
-                                             index_buffer=self.faces, index_element_size=4)
-        return self.vao
+        self.vao = ctx.vertex_array(program, [(gpu.vbo_position, "3f", "in_position"),
+                                              (self.instance_ids, "u/i", "in_instance")],
+                                    index_buffer=self.faces, index_element_size=4)
 
     def cull(self, set_common) -> None:
         """The clusters' commands and their faces' ids, for the VPLs bound (GPU only)."""
@@ -136,13 +129,11 @@ class ClusteredScene:
         counts = np.frombuffer(self.cluster_counts.read(), dtype=np.uint32).reshape(-1, 2)
         return int(counts[:, 0].sum())
 
-    def draw(self, program) -> None:
+    def draw(self) -> None:
         """Every cluster into the faces that see it: one multi-draw, a command per cluster."""
-        self.vertex_array(program).render_indirect(self.commands, mode=moderngl.TRIANGLES,
-                                                   count=self.cluster_count)
+        self.vao.render_indirect(self.commands, mode=moderngl.TRIANGLES, count=self.cluster_count)
 
     def release(self) -> None:
         for obj in (self.vao, self.faces, self.clusters, self.cluster_counts, self.commands, self.instance_ids,
                     self.cull_pass, self.command_pass):
-            if obj is not None:
-                obj.release()
+            obj.release()

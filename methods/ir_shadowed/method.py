@@ -127,7 +127,7 @@ from bench.gl.vpl import CLAMP_DOC, VPL_COUNT_DOC
 from bench.gl.near_field import (NEAR_FIELD_DEFAULT, NEAR_FIELD_DOC, NEAR_FIELDS, NEAR_SCALE_DEFAULT,
                                    NEAR_SCALE_DOC, NEAR_SCALE_RANGE, near_field_defines)
 from bench.gl.vpl import VPL_DEFINES, RsmVplSampler, VplGather
-from .clusters import CLUSTER_TRIANGLES, ClusteredScene, cluster_defines
+from .clusters import CLUSTER_TRIANGLES, ClusteredScene
 
 SHADERS = Path(__file__).parent / "shaders"
 HEMICUBE_FACES = 5  # front + 4 sides; injected into the shaders as a #define
@@ -163,10 +163,10 @@ class HemicubeAtlas:
         self.atlas.filter = (moderngl.NEAREST, moderngl.NEAREST)
         self.depth = ctx.depth_texture(size) if self.plane else None
         self.fbo = ctx.framebuffer([self.atlas], self.depth)
-        self.defines = dict(SHADOW_DEFINES, PLANE_TEST=int(self.plane), PLANE_TOLERANCE=PLANE_TOLERANCE,
-                            **cluster_defines(cluster_triangles))
+        self.defines = dict(SHADOW_DEFINES, PLANE_TEST=int(self.plane), PLANE_TOLERANCE=PLANE_TOLERANCE)
         self.program = load_program(ctx, SHADERS / "vpl_shadow_maps.glsl", self.defines)
-        self.scene = ClusteredScene(gpu, self.defines, self.vpl_count * HEMICUBE_FACES, cluster_triangles)
+        self.scene = ClusteredScene(gpu, self.program, self.defines, self.vpl_count * HEMICUBE_FACES,
+                                    cluster_triangles)
         self.near, self.far = NEAR_SCALE * gpu.radius, FAR_SCALE * gpu.radius
         self.lift = LIFT_SCALE * gpu.radius
 
@@ -188,7 +188,7 @@ class HemicubeAtlas:
             ctx.enable_direct(GL_CLIP_DISTANCE0 + i)
         self.set_uniforms(self.program)
         set_uniforms(self.program, u_near=self.near, u_far=self.far)
-        self.scene.draw(self.program)
+        self.scene.draw()
         for i in range(4):
             ctx.disable_direct(GL_CLIP_DISTANCE0 + i)
         ctx.blend_equation = moderngl.FUNC_ADD
